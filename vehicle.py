@@ -1,0 +1,849 @@
+"""The MAVLink link to the autopilot: the only module that imports pymavlink.
+
+:class:`MavlinkVehicle` connects with any pymavlink connection string, waits for the autopilot's heartbeat,
+requests telemetry, and runs two threads: a reader that translates every message into the SI :class:`Telemetry`
+dataclass, and a sender that sends our HEARTBEAT at 1 Hz and, while we control the vehicle, re-sends the current
+position setpoint at ``setpoint_rate_hz`` (PX4 leaves OFFBOARD after 0.5 s without one).
+
+MAVLink is translated at one boundary: one pure ``telemetry_from_*`` function per message family, each
+``(telemetry, msg, now_s) -> Telemetry``, dispatched by :func:`update_telemetry`.
+
+Frames: ``LOCAL_POSITION_NED`` is relative to wherever the autopilot's EKF started, which need not be the map
+origin. :func:`map_offset` computes ``map_ned - autopilot_local_ned`` from one GLOBAL_POSITION_INT sample and
+the LOCAL_POSITION_NED sample extrapolated to the same instant; map altitude 0 is the home altitude, so the map
+``down`` of the vehicle is ``-relative_alt_m``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import logging
+import math
+import os
+import struct
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from frames import Geodetic, LocalNED, geodetic_to_ned
+
+log = logging.getLogger(__name__)
+
+STATUSTEXT_KEEP = 32
+#: position + yaw only: ignore velocity, acceleration and yaw rate.
+TYPE_MASK_POSITION_YAW = (
+    mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_VY_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_VZ_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+)
+_NOT_AUTOPILOT_TYPES = frozenset(
+    {
+        mavlink.MAV_TYPE_GCS,
+        mavlink.MAV_TYPE_GIMBAL,
+        mavlink.MAV_TYPE_ADSB,
+        mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+        mavlink.MAV_TYPE_CAMERA,
+    }
+)
+
+
+# --------------------------------------------------------------------------------------------------- errors
+class VehicleError(Exception):
+    """Base class of every error raised by this module."""
+
+
+class ConnectionTimeout(VehicleError):
+    """No autopilot heartbeat arrived on ``connection`` within ``timeout_s``."""
+
+    def __init__(self, connection: str, timeout_s: float, detail: str = ""):
+        self.connection, self.timeout_s, self.detail = connection, timeout_s, detail
+        msg = f"no autopilot heartbeat on {connection} within {timeout_s:g} s"
+        super().__init__(f"{msg} ({detail})" if detail else msg)
+
+
+class CommandRejected(VehicleError):
+    """The autopilot answered a command with a result other than ACCEPTED.
+
+    ``command`` and ``result`` are the MAVLink numbers; ``reason`` is the autopilot's latest STATUSTEXT, if any.
+    """
+
+    def __init__(self, command: int, result: int, reason: str | None = None):
+        self.command, self.result, self.reason = command, result, reason
+        text = f"{command_name(command)} rejected: {result_name(result)}"
+        super().__init__(f"{text}: {reason}" if reason else text)
+
+
+class CommandTimeout(VehicleError):
+    """No COMMAND_ACK for ``command`` after ``attempts`` sends of ``timeout_s`` each."""
+
+    def __init__(self, command: int, attempts: int, timeout_s: float):
+        self.command, self.attempts, self.timeout_s = command, attempts, timeout_s
+        super().__init__(f"no COMMAND_ACK for {command_name(command)} after {attempts} x {timeout_s:g} s")
+
+
+class LinkLost(VehicleError):
+    """The autopilot's heartbeat stopped for longer than the link timeout."""
+
+    def __init__(self, silent_s: float):
+        self.silent_s = silent_s
+        super().__init__(f"link lost: no autopilot heartbeat for {silent_s:.1f} s")
+
+
+class TelemetryTimeout(VehicleError):
+    """A telemetry condition (``what``) did not hold within ``timeout_s``."""
+
+    def __init__(self, what: str, timeout_s: float):
+        self.what, self.timeout_s = what, timeout_s
+        super().__init__(f"timed out after {timeout_s:g} s waiting for {what}")
+
+
+class UnsupportedMode(VehicleError):
+    """The mode name is not in pymavlink's table for this autopilot."""
+
+    def __init__(self, mode: str, autopilot: Autopilot):
+        self.mode, self.autopilot = mode, autopilot
+        super().__init__(f"mode {mode!r} unknown for {autopilot.value}")
+
+
+def command_name(command: int) -> str:
+    """``MAV_CMD_...`` name of a command number (or the number)."""
+    entry = mavlink.enums["MAV_CMD"].get(command)
+    return entry.name if entry else f"command {command}"
+
+
+def result_name(result: int) -> str:
+    """``MAV_RESULT_...`` name of a result number (or the number)."""
+    entry = mavlink.enums["MAV_RESULT"].get(result)
+    return entry.name if entry else f"result {result}"
+
+
+# ------------------------------------------------------------------------------------------------ telemetry
+class Autopilot(enum.Enum):
+    """Which mode conventions the autopilot follows, from ``HEARTBEAT.autopilot``."""
+
+    PX4 = "px4"
+    ARDUPILOT = "ardupilot"
+    GENERIC = "generic"  # flown with PX4's conventions
+
+
+class LandedState(enum.IntEnum):
+    """``MAV_LANDED_STATE`` from EXTENDED_SYS_STATE."""
+
+    UNDEFINED = mavlink.MAV_LANDED_STATE_UNDEFINED
+    ON_GROUND = mavlink.MAV_LANDED_STATE_ON_GROUND
+    IN_AIR = mavlink.MAV_LANDED_STATE_IN_AIR
+    TAKEOFF = mavlink.MAV_LANDED_STATE_TAKEOFF
+    LANDING = mavlink.MAV_LANDED_STATE_LANDING
+
+
+@dataclass(frozen=True)
+class StatusText:
+    """One STATUSTEXT: MAV_SEVERITY (0 emergency .. 7 debug), text, our monotonic receive time in s."""
+
+    severity: int
+    text: str
+    time_s: float
+
+
+_NAN = math.nan
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    """Everything we know about the vehicle, in SI units. NaN / None until the message first arrives.
+
+    Global: ``lat_deg``, ``lon_deg``, ``alt_amsl_m``, ``relative_alt_m`` (above home), NED ground velocity
+    ``v*_mps``. Local (autopilot's EKF frame, NED): ``north_m``, ``east_m``, ``down_m``, ``local_v*_mps``.
+    ``*_time_s`` are the autopilot's time since boot of that sample. ``heading_rad`` is yaw from north, clockwise.
+    """
+
+    autopilot: Autopilot = Autopilot.GENERIC
+    armed: bool = False
+    mode: str = ""
+    system_status: int = 0
+    last_heartbeat_s: float = _NAN
+    lat_deg: float = _NAN
+    lon_deg: float = _NAN
+    alt_amsl_m: float = _NAN
+    relative_alt_m: float = _NAN
+    v_north_mps: float = _NAN
+    v_east_mps: float = _NAN
+    v_down_mps: float = _NAN
+    global_time_s: float = _NAN
+    north_m: float = _NAN
+    east_m: float = _NAN
+    down_m: float = _NAN
+    local_v_north_mps: float = _NAN
+    local_v_east_mps: float = _NAN
+    local_v_down_mps: float = _NAN
+    local_time_s: float = _NAN
+    roll_rad: float = _NAN
+    pitch_rad: float = _NAN
+    heading_rad: float = _NAN
+    landed_state: LandedState = LandedState.UNDEFINED
+    battery_voltage_v: float = _NAN
+    battery_remaining_pct: float = _NAN
+    prearm_ok: bool | None = None
+    home: Geodetic | None = None
+    statustexts: tuple[StatusText, ...] = field(default_factory=tuple)
+
+    @property
+    def has_global(self) -> bool:
+        return not math.isnan(self.lat_deg)
+
+    @property
+    def has_local(self) -> bool:
+        return not math.isnan(self.north_m)
+
+    @property
+    def local(self) -> LocalNED:
+        """Position in the autopilot's local NED frame."""
+        return LocalNED(self.north_m, self.east_m, self.down_m)
+
+    @property
+    def ground_speed_mps(self) -> float:
+        return math.hypot(self.local_v_north_mps, self.local_v_east_mps)
+
+
+def autopilot_from_heartbeat(msg) -> Autopilot:
+    """PX4, ArduPilot or generic from ``HEARTBEAT.autopilot``."""
+    if msg.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+        return Autopilot.PX4
+    if msg.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+        return Autopilot.ARDUPILOT
+    return Autopilot.GENERIC
+
+
+def is_autopilot_heartbeat(msg) -> bool:
+    """True for a flight controller's heartbeat; False for ground stations, gimbals, cameras, companions."""
+    return msg.type not in _NOT_AUTOPILOT_TYPES and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID
+
+
+def telemetry_from_heartbeat(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """Armed flag, mode name (pymavlink's tables), autopilot kind and the receive time."""
+    return dataclasses.replace(
+        t,
+        autopilot=autopilot_from_heartbeat(msg),
+        armed=bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED),
+        mode=mavutil.mode_string_v10(msg),
+        system_status=msg.system_status,
+        last_heartbeat_s=now_s,
+    )
+
+
+def telemetry_from_global_position_int(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """degE7 -> deg, mm -> m, cm/s -> m/s, cdeg heading -> rad (only when ATTITUDE has not given one)."""
+    heading = t.heading_rad
+    if math.isnan(heading) and msg.hdg != 65535:
+        heading = math.radians(msg.hdg / 100.0)
+    return dataclasses.replace(
+        t,
+        lat_deg=msg.lat * 1e-7,
+        lon_deg=msg.lon * 1e-7,
+        alt_amsl_m=msg.alt * 1e-3,
+        relative_alt_m=msg.relative_alt * 1e-3,
+        v_north_mps=msg.vx * 1e-2,
+        v_east_mps=msg.vy * 1e-2,
+        v_down_mps=msg.vz * 1e-2,
+        global_time_s=msg.time_boot_ms * 1e-3,
+        heading_rad=heading,
+    )
+
+
+def telemetry_from_local_position_ned(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """Autopilot-local NED position (m) and velocity (m/s)."""
+    return dataclasses.replace(
+        t,
+        north_m=float(msg.x),
+        east_m=float(msg.y),
+        down_m=float(msg.z),
+        local_v_north_mps=float(msg.vx),
+        local_v_east_mps=float(msg.vy),
+        local_v_down_mps=float(msg.vz),
+        local_time_s=msg.time_boot_ms * 1e-3,
+    )
+
+
+def telemetry_from_attitude(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """Roll, pitch, and yaw as ``heading_rad`` in [0, 2 pi)."""
+    return dataclasses.replace(
+        t, roll_rad=float(msg.roll), pitch_rad=float(msg.pitch), heading_rad=float(msg.yaw) % (2 * math.pi)
+    )
+
+
+def telemetry_from_extended_sys_state(t: Telemetry, msg, now_s: float) -> Telemetry:
+    try:
+        landed = LandedState(msg.landed_state)
+    except ValueError:
+        landed = LandedState.UNDEFINED
+    return dataclasses.replace(t, landed_state=landed)
+
+
+def telemetry_from_sys_status(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """Battery (mV -> V, -1 unknown -> NaN) and the pre-arm check bit when the autopilot reports it."""
+    prearm = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    return dataclasses.replace(
+        t,
+        battery_voltage_v=msg.voltage_battery * 1e-3 if msg.voltage_battery != 65535 else _NAN,
+        battery_remaining_pct=float(msg.battery_remaining) if msg.battery_remaining >= 0 else _NAN,
+        prearm_ok=bool(msg.onboard_control_sensors_health & prearm)
+        if msg.onboard_control_sensors_present & prearm
+        else None,
+    )
+
+
+def telemetry_from_home_position(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """Home as a :class:`Geodetic` (degE7 -> deg, mm AMSL -> m)."""
+    return dataclasses.replace(t, home=Geodetic(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3))
+
+
+def telemetry_from_statustext(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """Append the text (keeping the last :data:`STATUSTEXT_KEEP`)."""
+    text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
+    entry = StatusText(int(msg.severity), text.rstrip("\x00"), now_s)
+    return dataclasses.replace(t, statustexts=(*t.statustexts, entry)[-STATUSTEXT_KEEP:])
+
+
+TRANSLATORS: dict[str, Callable[[Telemetry, object, float], Telemetry]] = {
+    "HEARTBEAT": telemetry_from_heartbeat,
+    "GLOBAL_POSITION_INT": telemetry_from_global_position_int,
+    "LOCAL_POSITION_NED": telemetry_from_local_position_ned,
+    "ATTITUDE": telemetry_from_attitude,
+    "EXTENDED_SYS_STATE": telemetry_from_extended_sys_state,
+    "SYS_STATUS": telemetry_from_sys_status,
+    "HOME_POSITION": telemetry_from_home_position,
+    "STATUSTEXT": telemetry_from_statustext,
+}
+
+
+def update_telemetry(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """Apply one decoded message; messages we do not translate leave ``t`` unchanged."""
+    translate = TRANSLATORS.get(msg.get_type())
+    return translate(t, msg, now_s) if translate else t
+
+
+def map_offset(t: Telemetry, map_origin: Geodetic) -> LocalNED:
+    """Offset from the autopilot's local frame to the map frame: ``map_ned = local_ned + offset``.
+
+    The map frame is NED at ``map_origin`` (lat0, lon0) with altitude 0 = home altitude. The local sample is
+    extrapolated with its velocity to the global sample's time, so the two describe the same instant.
+
+    >>> t = Telemetry(lat_deg=37.79248, lon_deg=-122.39745, relative_alt_m=5.0, global_time_s=10.0,
+    ...               north_m=1.0, east_m=2.0, down_m=-4.0, local_v_north_mps=2.0, local_v_east_mps=0.0,
+    ...               local_v_down_mps=0.0, local_time_s=9.5)
+    >>> [round(v, 3) for v in map_offset(t, Geodetic(37.79248, -122.39745))]
+    [-2.0, -2.0, -1.0]
+    """
+    if not (t.has_global and t.has_local):
+        raise ValueError("map_offset needs both GLOBAL_POSITION_INT and LOCAL_POSITION_NED")
+    dt = t.global_time_s - t.local_time_s
+    if not math.isfinite(dt) or abs(dt) > 1.0:
+        dt = 0.0
+    local = LocalNED(
+        t.north_m + t.local_v_north_mps * dt, t.east_m + t.local_v_east_mps * dt, t.down_m + t.local_v_down_mps * dt
+    )
+    horizontal = geodetic_to_ned(Geodetic(t.lat_deg, t.lon_deg, map_origin.alt_m), map_origin)
+    return LocalNED(horizontal.north_m - local.north_m, horizontal.east_m - local.east_m,
+                    -t.relative_alt_m - local.down_m)
+
+
+def map_position(t: Telemetry, map_origin: Geodetic) -> LocalNED:
+    """The vehicle's map-frame position from its global position alone (down = ``-relative_alt_m``)."""
+    horizontal = geodetic_to_ned(Geodetic(t.lat_deg, t.lon_deg, map_origin.alt_m), map_origin)
+    return LocalNED(horizontal.north_m, horizontal.east_m, -t.relative_alt_m)
+
+
+def mode_numbers(autopilot: Autopilot, mode: str, mav_type: int = mavlink.MAV_TYPE_QUADROTOR) -> tuple[int, int]:
+    """``(param2, param3)`` of DO_SET_MODE for ``mode``, from pymavlink's tables.
+
+    PX4 / generic: (custom main mode, custom sub mode), e.g. ``OFFBOARD`` -> (6, 0). ArduPilot: (mode number, 0)
+    from the table for ``mav_type`` (ArduCopter for multirotors), e.g. ``GUIDED`` -> (4, 0).
+    """
+    mode = mode.upper()
+    if autopilot is Autopilot.ARDUPILOT:
+        table = mavutil.mode_mapping_byname(mav_type) or {v: k for k, v in mavutil.mode_mapping_acm.items()}
+        if mode not in table:
+            raise UnsupportedMode(mode, autopilot)
+        return int(table[mode]), 0
+    if mode not in mavutil.px4_map:
+        raise UnsupportedMode(mode, autopilot)
+    _, main_mode, sub_mode = mavutil.px4_map[mode]
+    return int(main_mode), int(sub_mode)
+
+
+# ------------------------------------------------------------------------------------------------- vehicle
+@dataclass(frozen=True)
+class _Setpoint:
+    north_m: float
+    east_m: float
+    down_m: float
+    yaw_rad: float
+
+
+class MavlinkVehicle:
+    """A MAVLink autopilot (PX4, ArduPilot or generic) behind SI-unit methods.
+
+    Parameters
+    ----------
+    connection : str
+        Any pymavlink connection string: ``tcp:HOST:PORT``, ``udpin:HOST:PORT``, ``udpout:...``, serial device.
+    heartbeat_timeout_s : float
+        How long to wait for the first autopilot heartbeat (and for a TCP connect to succeed).
+    link_timeout_s : float
+        Heartbeat silence after which the link counts as lost.
+    command_timeout_s, command_retries : float, int
+        Each COMMAND_LONG waits this long for its COMMAND_ACK, and is re-sent up to ``command_retries`` times.
+    setpoint_rate_hz, telemetry_rate_hz : float
+        Setpoint re-send rate while in control; requested rate of position/attitude messages.
+    tlog_path : str, optional
+        Write a standard MAVLink tlog (8-byte big-endian microseconds + packet) of everything received and sent.
+
+    Raises
+    ------
+    ConnectionTimeout
+        No autopilot heartbeat within ``heartbeat_timeout_s``.
+    """
+
+    def __init__(
+        self,
+        connection: str = "tcp:127.0.0.1:5760",
+        *,
+        heartbeat_timeout_s: float = 10.0,
+        link_timeout_s: float = 3.0,
+        command_timeout_s: float = 1.5,
+        command_retries: int = 3,
+        setpoint_rate_hz: float = 20.0,
+        telemetry_rate_hz: float = 10.0,
+        source_system: int = 255,
+        source_component: int = mavlink.MAV_COMP_ID_MISSIONPLANNER,
+        tlog_path: str | os.PathLike | None = None,
+    ):
+        self.connection = connection
+        self.link_timeout_s = link_timeout_s
+        self.command_timeout_s = command_timeout_s
+        self.command_retries = command_retries
+        self.setpoint_rate_hz = setpoint_rate_hz
+        self._source_system = source_system
+        self._t0 = time.monotonic()
+        self._telemetry = Telemetry()
+        self._cond = threading.Condition()  # guards _telemetry, _acks, _target
+        self._acks: list = []
+        self._target: tuple[int, int] | None = None
+        self._mav_type = mavlink.MAV_TYPE_QUADROTOR
+        self._send_lock = threading.Lock()  # guards the MAVLink encoder (sequence numbers) and the socket
+        self._command_lock = threading.Lock()  # one command in flight at a time
+        self._setpoint: _Setpoint | None = None
+        self._streaming = False
+        self._eof = False
+        self._stop = threading.Event()
+        self._tlog = open(tlog_path, "wb") if tlog_path else None  # noqa: SIM115 (closed in close())
+        self._tlog_lock = threading.Lock()
+        try:
+            self._conn = self._open(connection, heartbeat_timeout_s, source_system, source_component)
+        except BaseException:
+            self._close_tlog()
+            raise
+        self._conn.mav.set_send_callback(self._on_sent)
+        if hasattr(self._conn, "handle_eof"):  # TCP: note the peer closing instead of printing in a loop
+            self._conn.handle_eof = self._on_eof
+            self._conn.handle_disconnect = self._on_eof
+        self._reader = threading.Thread(target=self._read_loop, name="mavlink-reader", daemon=True)
+        self._sender = threading.Thread(target=self._send_loop, name="mavlink-sender", daemon=True)
+        self._reader.start()
+        self._sender.start()
+        try:
+            self._wait_for_autopilot(heartbeat_timeout_s)
+            self._request_telemetry(telemetry_rate_hz)
+        except BaseException:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------------------------------------ connection
+    @staticmethod
+    def _open(connection: str, timeout_s: float, source_system: int, source_component: int):
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                conn = mavutil.mavlink_connection(
+                    connection, source_system=source_system, source_component=source_component,
+                    retries=0, autoreconnect=False,
+                )
+            except OSError as exc:  # TCP refused: the autopilot may still be starting
+                if time.monotonic() >= deadline:
+                    raise ConnectionTimeout(connection, timeout_s, str(exc)) from exc
+                time.sleep(0.2)
+                continue
+            if not conn.mavlink20():
+                # Speak MAVLink 2 from our first packet (pymavlink would otherwise start with MAVLink 1 and swap
+                # its encoder on the first MAVLink 2 packet it reads, racing our sender thread).
+                conn.mav = mavlink.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
+                conn.mav.robust_parsing = True
+                conn.WIRE_PROTOCOL_VERSION = "2.0"
+            return conn
+
+    def _wait_for_autopilot(self, timeout_s: float) -> None:
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._target is not None, timeout=timeout_s):
+                raise ConnectionTimeout(self.connection, timeout_s)
+            sysid, compid = self._target
+            t = self._telemetry
+        log.info("connected to %s autopilot system %d component %d on %s (mode %s)",
+                 t.autopilot.value, sysid, compid, self.connection, t.mode)
+
+    def _request_telemetry(self, rate_hz: float) -> None:
+        rates = {
+            mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: rate_hz,
+            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: rate_hz,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE: rate_hz,
+            mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
+            mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+        }
+        for msg_id, hz in rates.items():
+            self._request_quietly(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
+        self._request_quietly(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_HOME_POSITION)
+
+    def _request_quietly(self, command: int, *params: float) -> None:
+        """Telemetry requests are best effort: some autopilots stream by default and refuse or ignore them."""
+        try:
+            self.command_long(command, *params, timeout_s=min(self.command_timeout_s, 1.0), retries=1)
+        except (CommandRejected, CommandTimeout) as exc:
+            log.warning("telemetry request ignored: %s", exc)
+
+    def close(self) -> None:
+        """Stop both threads, close the link and flush/close the tlog. Safe to call twice."""
+        self._streaming = False
+        self._stop.set()
+        for thread in (getattr(self, "_reader", None), getattr(self, "_sender", None)):
+            if thread is not None and thread.is_alive() and thread is not threading.current_thread():
+                thread.join(timeout=2.0)
+        conn = getattr(self, "_conn", None)
+        if conn is not None:
+            try:
+                conn.close()
+            except OSError:
+                pass
+            self._conn = None
+        self._close_tlog()
+
+    def _close_tlog(self) -> None:
+        with self._tlog_lock:
+            if self._tlog is not None:
+                self._tlog.close()
+                self._tlog = None
+
+    def __enter__(self) -> MavlinkVehicle:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ---------------------------------------------------------------------------------------------- state
+    @property
+    def telemetry(self) -> Telemetry:
+        """The latest telemetry snapshot (immutable)."""
+        with self._cond:
+            return self._telemetry
+
+    @property
+    def autopilot(self) -> Autopilot:
+        return self.telemetry.autopilot
+
+    @property
+    def link_ok(self) -> bool:
+        """True while the autopilot's heartbeat is younger than ``link_timeout_s``."""
+        return self.heartbeat_age_s() <= self.link_timeout_s
+
+    def heartbeat_age_s(self) -> float:
+        last = self.telemetry.last_heartbeat_s
+        return math.inf if math.isnan(last) else time.monotonic() - last
+
+    def check_link(self) -> None:
+        """Raise :class:`LinkLost` when the heartbeat has been silent for longer than ``link_timeout_s``."""
+        age = self.heartbeat_age_s()
+        if age > self.link_timeout_s:
+            raise LinkLost(age)
+
+    @property
+    def in_control(self) -> bool:
+        """True while the autopilot is in OFFBOARD (PX4) or GUIDED (ArduPilot)."""
+        return self.telemetry.mode in ("OFFBOARD", "GUIDED")
+
+    def wait_for(self, predicate: Callable[[Telemetry], bool], timeout_s: float, what: str) -> Telemetry:
+        """Block until ``predicate(telemetry)`` holds; raise :class:`TelemetryTimeout` (or LinkLost) otherwise."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while not predicate(self._telemetry):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                self._cond.wait(timeout=min(remaining, 0.5))
+            else:
+                return self._telemetry
+        self.check_link()
+        raise TelemetryTimeout(what, timeout_s)
+
+    def map_offset(self, map_origin: Geodetic, timeout_s: float = 10.0) -> LocalNED:
+        """``map_ned - autopilot_local_ned`` (see :func:`map_offset`), once both positions have arrived."""
+        t = self.wait_for(lambda t: t.has_global and t.has_local, timeout_s,
+                          "GLOBAL_POSITION_INT and LOCAL_POSITION_NED")
+        offset = map_offset(t, map_origin)
+        log.info("map frame = autopilot local frame + (%.2f, %.2f, %.2f) m", *offset)
+        return offset
+
+    # ------------------------------------------------------------------------------------------- commands
+    def command_long(self, command: int, *params: float, timeout_s: float | None = None,
+                     retries: int | None = None):
+        """Send COMMAND_LONG and wait for its COMMAND_ACK; returns the ack message.
+
+        Re-sends with ``confirmation`` incremented when no ack arrives; IN_PROGRESS acks extend the wait.
+
+        Raises
+        ------
+        CommandRejected
+            Any result but ACCEPTED, with the autopilot's latest STATUSTEXT as the reason.
+        CommandTimeout
+            No ack after ``1 + retries`` attempts.
+        LinkLost
+            The heartbeat is silent (before sending, or when the retries ran out).
+        """
+        timeout_s = self.command_timeout_s if timeout_s is None else timeout_s
+        retries = self.command_retries if retries is None else retries
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+        self.check_link()
+        with self._command_lock:
+            sent_s = time.monotonic()
+            for confirmation in range(retries + 1):
+                with self._cond:
+                    self._acks.clear()
+                sysid, compid = self._target
+                self._send(self._conn.mav.command_long_encode(sysid, compid, command, confirmation, *p))
+                ack = self._wait_ack(command, timeout_s)
+                if ack is None:
+                    log.debug("no ack for %s (attempt %d)", command_name(command), confirmation + 1)
+                    continue
+                if ack.result == mavlink.MAV_RESULT_ACCEPTED:
+                    return ack
+                raise CommandRejected(command, ack.result, self._reason_since(sent_s))
+        self.check_link()
+        raise CommandTimeout(command, retries + 1, timeout_s)
+
+    def _wait_ack(self, command: int, timeout_s: float):
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                for i, ack in enumerate(self._acks):
+                    if ack.command != command:
+                        continue
+                    del self._acks[i]
+                    if ack.result == mavlink.MAV_RESULT_IN_PROGRESS:
+                        deadline = time.monotonic() + timeout_s
+                        break
+                    return ack
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return None
+                self._cond.wait(timeout=remaining)
+
+    def _reason_since(self, since_s: float, grace_s: float = 0.3) -> str | None:
+        """The autopilot's latest STATUSTEXT since ``since_s`` (waiting ``grace_s`` for one that trails the ack)."""
+
+        def latest(t: Telemetry) -> StatusText | None:
+            recent = [s for s in t.statustexts if s.time_s >= since_s - 0.5]
+            return recent[-1] if recent else None
+
+        try:
+            t = self.wait_for(lambda t: latest(t) is not None, grace_s, "STATUSTEXT")
+        except VehicleError:
+            return None
+        return latest(t).text
+
+    def arm(self) -> None:
+        """Arm (MAV_CMD_COMPONENT_ARM_DISARM 1) and wait for the heartbeat to say so."""
+        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        self.wait_for(lambda t: t.armed, 3.0, "heartbeat armed flag")
+        log.info("armed")
+
+    def disarm(self, *, force: bool = False) -> None:
+        """Disarm; ``force`` sends the 21196 magic (disarm in the air) — never used by the mission."""
+        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196 if force else 0)
+        self.wait_for(lambda t: not t.armed, 3.0, "heartbeat disarmed flag")
+        log.info("disarmed")
+
+    def set_mode(self, mode: str) -> None:
+        """DO_SET_MODE by name, using pymavlink's PX4 or ArduPilot table (raises :class:`UnsupportedMode`)."""
+        main_mode, sub_mode = mode_numbers(self.autopilot, mode, self._mav_type)
+        self.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main_mode,
+                          sub_mode)
+        log.info("mode %s requested", mode)
+
+    def start_offboard(self, warmup_s: float = 0.5) -> None:
+        """Take position control: PX4/generic OFFBOARD (setpoints stream first), ArduPilot GUIDED."""
+        t = self.telemetry
+        if self.autopilot is Autopilot.ARDUPILOT:
+            self.set_mode("GUIDED")
+            return
+        if self._setpoint is None:
+            self._setpoint = _Setpoint(t.north_m, t.east_m, t.down_m, _heading_or_zero(t))
+        self._streaming = True
+        time.sleep(warmup_s)
+        self.set_mode("OFFBOARD")
+
+    def takeoff(self, altitude_m: float) -> LocalNED:
+        """Climb ``altitude_m`` above the current position; returns the local target. Does not wait.
+
+        PX4/generic: OFFBOARD with a position setpoint straight above. ArduPilot: GUIDED + MAV_CMD_NAV_TAKEOFF.
+        """
+        t = self.telemetry
+        target = LocalNED(t.north_m, t.east_m, t.down_m - altitude_m)
+        if self.autopilot is Autopilot.ARDUPILOT:
+            self._streaming, self._setpoint = False, None  # a position target would cut the takeoff short
+            if t.mode != "GUIDED":
+                self.set_mode("GUIDED")
+            self.command_long(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, _NAN, 0, 0, altitude_m)
+        else:
+            self._setpoint = _Setpoint(t.north_m, t.east_m, t.down_m, _heading_or_zero(t))
+            if not self.in_control:
+                self.start_offboard()
+            self.goto_local(*target, yaw_rad=_heading_or_zero(t))
+        log.info("takeoff to %.1f m above the ground", altitude_m)
+        return target
+
+    def goto_local(self, north_m: float, east_m: float, down_m: float, yaw_rad: float) -> None:
+        """Fly to a position in the autopilot's LOCAL_NED frame (m) with a heading (rad); re-sent until changed."""
+        self._setpoint = _Setpoint(float(north_m), float(east_m), float(down_m), float(yaw_rad))
+        self._streaming = True
+        self._send_setpoint(self._setpoint)
+
+    def land(self) -> None:
+        """Land where we are: PX4 MAV_CMD_NAV_LAND (falls back to AUTO.LAND mode), ArduPilot LAND mode."""
+        self._streaming = False
+        if self.autopilot is Autopilot.ARDUPILOT:
+            self.set_mode("LAND")
+        else:
+            try:
+                self.command_long(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, _NAN, _NAN, _NAN, _NAN)
+            except CommandRejected as exc:
+                log.warning("%s; switching to LAND mode instead", exc)
+                self.set_mode("LAND")
+        log.info("landing")
+
+    def hold(self) -> None:
+        """Hover in place: LOITER mode; if refused, a setpoint at the current position."""
+        try:
+            self._streaming = False
+            self.set_mode("LOITER")
+        except (CommandRejected, UnsupportedMode) as exc:
+            t = self.telemetry
+            log.warning("%s; holding with a position setpoint instead", exc)
+            self.goto_local(t.north_m, t.east_m, t.down_m, _heading_or_zero(t))
+        log.info("holding position")
+
+    def release_control(self) -> None:
+        """Stop streaming setpoints (the autopilot keeps its current mode)."""
+        self._streaming = False
+        self._setpoint = None
+
+    # ------------------------------------------------------------------------------------------ threads
+    def _send(self, msg) -> None:
+        with self._send_lock:
+            if self._conn is not None:
+                self._conn.mav.send(msg)
+
+    def _on_sent(self, msg) -> None:  # called by the encoder under _send_lock
+        self._write_tlog(msg.get_msgbuf())
+
+    def _write_tlog(self, packet: bytes) -> None:
+        with self._tlog_lock:
+            if self._tlog is not None:
+                self._tlog.write(struct.pack(">Q", int(time.time() * 1e6) & ~3) + bytes(packet))
+                self._tlog.flush()
+
+    def _on_eof(self) -> None:
+        if not self._eof:
+            log.error("the autopilot closed the connection %s", self.connection)
+        self._eof = True
+
+    def _send_setpoint(self, sp: _Setpoint) -> None:
+        if self._target is None:
+            return
+        sysid, compid = self._target
+        boot_ms = int((time.monotonic() - self._t0) * 1000) & 0xFFFFFFFF
+        self._send(self._conn.mav.set_position_target_local_ned_encode(
+            boot_ms, sysid, compid, mavlink.MAV_FRAME_LOCAL_NED, TYPE_MASK_POSITION_YAW,
+            sp.north_m, sp.east_m, sp.down_m, 0, 0, 0, 0, 0, 0, sp.yaw_rad, 0))
+
+    def _send_loop(self) -> None:
+        period = 1.0 / self.setpoint_rate_hz
+        next_heartbeat = 0.0
+        while not self._stop.is_set():
+            try:
+                now = time.monotonic()
+                if now >= next_heartbeat:
+                    next_heartbeat = now + 1.0
+                    self._send(self._conn.mav.heartbeat_encode(
+                        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE))
+                sp = self._setpoint
+                if self._streaming and sp is not None:
+                    self._send_setpoint(sp)
+            except (OSError, AttributeError) as exc:  # AttributeError: connection closed under us
+                if self._stop.is_set():
+                    return
+                log.debug("send failed: %s", exc)
+            self._stop.wait(period)
+
+    def _read_loop(self) -> None:
+        conn = self._conn
+        while not self._stop.is_set():
+            if self._eof:
+                self._stop.wait(0.1)
+                continue
+            try:
+                msg = conn.recv_msg()
+            except OSError as exc:
+                if not self._stop.is_set():
+                    log.error("link read failed: %s", exc)
+                self._eof = True
+                continue
+            if msg is None:
+                conn.select(0.05)
+                continue
+            if msg.get_type() == "BAD_DATA":
+                continue
+            self._write_tlog(msg.get_msgbuf())
+            self._handle(msg)
+
+    def _handle(self, msg) -> None:
+        now = time.monotonic()
+        mtype = msg.get_type()
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        with self._cond:
+            if self._target is None:
+                if mtype != "HEARTBEAT" or not is_autopilot_heartbeat(msg):
+                    return
+                self._target = src
+                self._mav_type = msg.type
+            if src[0] != self._target[0]:
+                return
+            if mtype == "HEARTBEAT" and src != self._target:
+                return  # another component of the same system
+            if mtype == "COMMAND_ACK":
+                if getattr(msg, "target_system", 0) in (0, self._source_system):
+                    self._acks.append(msg)
+            self._telemetry = update_telemetry(self._telemetry, msg, now)
+            self._cond.notify_all()
+        if mtype == "STATUSTEXT":
+            level = logging.WARNING if msg.severity <= mavlink.MAV_SEVERITY_WARNING else logging.INFO
+            log.log(level, "autopilot says: %s", str(msg.text).rstrip("\x00"))
+
+
+def _heading_or_zero(t: Telemetry) -> float:
+    return 0.0 if math.isnan(t.heading_rad) else t.heading_rad

@@ -1,0 +1,212 @@
+"""Search optimality and safety: hand-drawn maps with answers worked out by hand, and random maps checked against
+an independent Dijkstra written here from scratch."""
+
+from __future__ import annotations
+
+import heapq
+import math
+
+import numpy as np
+import pytest
+
+from planning_utils import (
+    BlockedCellError,
+    GridPlanner,
+    NoPathError,
+    OutsideGridError,
+    a_star,
+    heuristic,
+    nearest_free_cell,
+)
+
+SQRT2 = math.sqrt(2)
+METHODS = ["jps", "astar"]
+
+
+def dijkstra_cost(grid: np.ndarray, start, goal) -> float:
+    """Reference: plain Dijkstra on the 8-connected graph without corner cutting; inf if unreachable."""
+    n, m = grid.shape
+    dist = {tuple(start): 0.0}
+    queue = [(0.0, tuple(start))]
+    while queue:
+        d, (i, j) = heapq.heappop(queue)
+        if (i, j) == tuple(goal):
+            return d
+        if d > dist[(i, j)]:
+            continue
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                if di == dj == 0:
+                    continue
+                a, b = i + di, j + dj
+                if not (0 <= a < n and 0 <= b < m) or grid[a, b]:
+                    continue
+                if di and dj and (grid[i + di, j] or grid[i, j + dj]):
+                    continue
+                nd = d + (SQRT2 if di and dj else 1.0)
+                if nd < dist.get((a, b), math.inf):
+                    dist[(a, b)] = nd
+                    heapq.heappush(queue, (nd, (a, b)))
+    return math.inf
+
+
+def assert_valid_path(grid: np.ndarray, cells: np.ndarray, start, goal, cost: float) -> None:
+    """Adjacent free cells, no corner cutting, from start to goal, and the steps add up to ``cost``."""
+    cells = np.asarray(cells)
+    assert tuple(cells[0]) == tuple(start) and tuple(cells[-1]) == tuple(goal)
+    assert not grid[cells[:, 0], cells[:, 1]].any()
+    steps = np.diff(cells, axis=0)
+    assert (np.abs(steps).max(axis=1) == 1).all()
+    diagonal = (steps != 0).all(axis=1)
+    for (i, j), (di, dj) in zip(cells[:-1][diagonal], steps[diagonal]):
+        assert not grid[i + di, j] and not grid[i, j + dj], "diagonal squeezes past a blocked corner"
+    assert math.isclose(diagonal.sum() * SQRT2 + (~diagonal).sum(), cost, abs_tol=1e-9)
+
+
+def random_grid(rng: np.random.Generator, shape=(40, 50), density=0.3, blob=True) -> np.ndarray:
+    """Random obstacles: single cells plus rectangles, so both mazes and city-like blocks get tested."""
+    grid = rng.random(shape) < density * (0.3 if blob else 1.0)
+    if blob:
+        for _ in range(int(shape[0] * shape[1] * density / 40)):
+            i, j = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+            grid[i : i + rng.integers(1, 8), j : j + rng.integers(1, 8)] = True
+    return grid
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_open_grid_costs_are_octile_distances(method):
+    grid = np.zeros((10, 10), dtype=bool)
+    planner = GridPlanner(grid, method)
+    # 3 north, 7 east: 3 diagonals + 4 straight.
+    path = planner.plan((0, 0), (3, 7))
+    assert path.cost == pytest.approx(3 * SQRT2 + 4, abs=1e-12)
+    assert_valid_path(grid, path.cells, (0, 0), (3, 7), path.cost)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_wall_with_gap_forces_detour_through_gap(method):
+    # North up; row index = north. Wall along east index 3 except a gap at north 4.
+    #   north 4 . . . _ . .
+    #   north 3 . . . # . .
+    #   north 2 . . . # . .
+    #   north 1 . . . # . .
+    #   north 0 S . . # . G
+    grid = np.zeros((5, 6), dtype=bool)
+    grid[0:4, 3] = True
+    path = GridPlanner(grid, method).plan((0, 0), (0, 5))
+    # By hand: the gap (4, 3) can only be entered from (4, 2), because the diagonal from (3, 2) would pass the
+    # wall cell (3, 3); likewise it can only be left to (4, 4). (0,0)->(4,2): 2 diagonals + 2 straight;
+    # (4,2)->(4,3)->(4,4): 2 straight; (4,4)->(0,5): 1 diagonal + 3 straight. Total 3*sqrt2 + 7.
+    assert path.cost == pytest.approx(3 * SQRT2 + 7, abs=1e-12)
+    assert [4, 3] in path.cells.tolist()
+    assert_valid_path(grid, path.cells, (0, 0), (0, 5), path.cost)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_diagonal_never_squeezes_between_touching_blocks(method):
+    # Two blocked cells touching at a corner: the only diagonal through that corner is forbidden.
+    #   north 1  .  #
+    #   north 0  #  .
+    grid = np.array([[True, False], [False, True]])
+    with pytest.raises(NoPathError):
+        GridPlanner(grid, method).plan((0, 1), (1, 0))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_moving_north_increases_the_north_index(method):
+    grid = np.zeros((5, 1), dtype=bool)
+    path = GridPlanner(grid, method).plan((0, 0), (4, 0))
+    assert path.cells[:, 0].tolist() == [0, 1, 2, 3, 4]
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("seed", range(40))
+def test_cost_equals_dijkstra_on_random_maps(method, seed):
+    rng = np.random.default_rng(seed)
+    grid = random_grid(rng, density=0.15 + 0.35 * rng.random(), blob=bool(seed % 2))
+    planner = GridPlanner(grid, method)
+    free = np.argwhere(~grid)
+    for _ in range(5):
+        start, goal = free[rng.integers(len(free))], free[rng.integers(len(free))]
+        expected = dijkstra_cost(grid, start, goal)
+        if math.isinf(expected):
+            with pytest.raises(NoPathError):
+                planner.plan(start, goal)
+            continue
+        path = planner.plan(start, goal)
+        assert path.cost == pytest.approx(expected, abs=1e-9)
+        assert_valid_path(grid, path.cells, start, goal, path.cost)
+
+
+def test_planner_reuse_does_not_leak_state_between_queries():
+    rng = np.random.default_rng(7)
+    grid = random_grid(rng, shape=(60, 60), density=0.3)
+    free = np.argwhere(~grid)
+    reused = GridPlanner(grid)
+    for _ in range(30):
+        start, goal = free[rng.integers(len(free))], free[rng.integers(len(free))]
+        try:
+            fresh_cost = GridPlanner(grid).plan(start, goal).cost
+        except NoPathError:
+            with pytest.raises(NoPathError):
+                reused.plan(start, goal)
+            continue
+        assert reused.plan(start, goal).cost == fresh_cost
+
+
+def test_start_equal_to_goal_is_a_zero_cost_path():
+    path = GridPlanner(np.zeros((3, 3), dtype=bool)).plan((1, 1), (1, 1))
+    assert path.cost == 0 and path.cells.tolist() == [[1, 1]]
+
+
+def test_outside_start_and_goal_are_typed_errors():
+    planner = GridPlanner(np.zeros((4, 4), dtype=bool))
+    with pytest.raises(OutsideGridError, match="start cell \\(-1, 0\\) is off the map"):
+        planner.plan((-1, 0), (1, 1))
+    with pytest.raises(OutsideGridError, match="goal"):
+        planner.plan((0, 0), (1, 4))
+
+
+def test_blocked_goal_error_names_the_nearest_free_cell():
+    grid = np.zeros((9, 9), dtype=bool)
+    grid[2:7, 3:9] = True
+    with pytest.raises(BlockedCellError) as info:
+        GridPlanner(grid).plan((0, 0), (4, 7))
+    # From (4, 7) the block reaches 2 cells south/north (to rows 2..6) and 5 cells west: nearest free is
+    # 3 rows away, (1, 7) or (7, 7); the search is symmetric so accept either.
+    assert info.value.nearest_free in {(1, 7), (7, 7)}
+    assert "nearest free cell is" in str(info.value)
+
+
+def test_nearest_free_cell_matches_brute_force():
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        grid = random_grid(rng, shape=(30, 30), density=0.6)
+        cell = tuple(rng.integers(-5, 35, size=2))
+        free = np.argwhere(~grid)
+        found = nearest_free_cell(grid, cell)
+        if not len(free):
+            assert found is None
+            continue
+        best = ((free - cell) ** 2).sum(axis=1).min()
+        assert ((np.array(found) - cell) ** 2).sum() == best
+
+
+def test_nearest_free_cell_of_full_grid_is_none():
+    assert nearest_free_cell(np.ones((5, 5), dtype=bool), (2, 2)) is None
+
+
+def test_classic_a_star_signature_returns_tuples_and_cost():
+    grid = np.zeros((3, 3), dtype=bool)
+    path, cost = a_star(grid, heuristic, (0, 0), (2, 2))
+    assert path == [(0, 0), (1, 1), (2, 2)]
+    assert cost == pytest.approx(2 * SQRT2)
+
+
+def test_classic_heuristic_is_euclidean():
+    assert heuristic((0, 0), (3, 4)) == 5.0
+
+
+def test_grid_planner_rejects_non_bool_grids():
+    with pytest.raises(ValueError, match="bool"):
+        GridPlanner(np.zeros((3, 3), dtype=np.uint8))

@@ -1,0 +1,286 @@
+"""Map files, configuration space, pruning and waypoints."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planning_utils import (
+    GridMap,
+    GridPlanner,
+    MapFormatError,
+    NoPathError,
+    create_grid,
+    headings_along,
+    line_of_sight,
+    path_length,
+    prune_collinear,
+    prune_path,
+    read_colliders,
+    read_home,
+    supercover,
+    waypoints_from_cells,
+)
+from tests.test_grid_search import random_grid
+
+SF_MAP = Path(__file__).resolve().parents[2] / "shared" / "maps" / "udacity_sf_colliders.csv"
+HEADER = "lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+
+
+def write_map(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "map.csv"
+    path.write_text(text)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Map files
+
+
+def test_reads_home_and_rows(tmp_path):
+    city = read_colliders(write_map(tmp_path, HEADER + "1,2,3,4,5,6\n\n-1.5,2,3,0.5,0.5,3\n"))
+    assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)
+    assert city.obstacles.tolist() == [[1, 2, 3, 4, 5, 6], [-1.5, 2, 3, 0.5, 0.5, 3]]
+
+
+def test_read_home_returns_lat_then_lon(tmp_path):
+    assert read_home(write_map(tmp_path, HEADER + "1,2,3,4,5,6\n")) == (37.79248, -122.39745)
+
+
+@pytest.mark.skipif(not SF_MAP.exists(), reason="shared SF map not present")
+def test_reads_the_shared_sf_map_unchanged():
+    city = read_colliders(SF_MAP)
+    assert city.obstacles.shape == (3845, 6)
+    assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)
+
+
+@pytest.mark.parametrize(
+    "text, line, message",
+    [
+        ("", 1, "empty file"),
+        ("37.7, -122.3\n" + HEADER, 1, "expected 'lat0"),
+        ("lat0 95.0, lon0 1.0\n" + HEADER.splitlines()[1] + "\n1,2,3,4,5,6\n", 1, "outside"),
+        ("lat0 37.7, lon0 -122.3\n", 2, "expected header"),
+        ("lat0 37.7, lon0 -122.3\nx,y,z\n1,2,3,4,5,6\n", 2, "expected header"),
+        (HEADER, 3, "no obstacle rows"),
+        (HEADER + "1,2,3,4,5,6\n1,2,3,4,5\n", 4, "expected 6 columns, got 5"),
+        (HEADER + "1,2,3,4,5,6\n1,2,x,4,5,6\n", 4, "not a number: 'x'"),
+        (HEADER + "1,2,3,4,5,6\n\n1,2,nan,4,5,6\n", 5, "NaN or infinite"),
+        (HEADER + "1,2,inf,4,5,6\n", 3, "NaN or infinite"),
+        (HEADER + "1,2,3,4,5,6\n1,2,3,-4,5,6\n", 4, "negative half size"),
+    ],
+)
+def test_bad_map_files_name_the_file_and_line(tmp_path, text, line, message):
+    path = write_map(tmp_path, text)
+    with pytest.raises(MapFormatError, match=message) as info:
+        read_colliders(path)
+    assert info.value.line == line
+    assert str(info.value).startswith(f"{path}:{line}: ")
+
+
+def test_binary_file_is_a_map_format_error(tmp_path):
+    path = tmp_path / "map.csv"
+    path.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(MapFormatError, match="not a text file"):
+        read_colliders(path)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Configuration space
+
+
+def brute_force_grid(data, altitude, safety):
+    """Reference: test each cell square against each inflated box with a Python loop."""
+    north, east, alt, dn, de, da = data.T
+    n0 = int(np.floor(np.min(north - dn)))
+    e0 = int(np.floor(np.min(east - de)))
+    shape = (int(np.ceil(np.max(north + dn))) - n0, int(np.ceil(np.max(east + de))) - e0)
+    grid = np.zeros(shape, dtype=bool)
+    for i in range(shape[0]):
+        for j in range(shape[1]):
+            for row in data:
+                if row[2] + row[5] + safety <= altitude:
+                    continue
+                # open rectangle (a, b) x (c, d) intersects the cell square [i, i+1) x [j, j+1)
+                a, b = row[0] - row[3] - safety - n0, row[0] + row[3] + safety - n0
+                c, d = row[1] - row[4] - safety - e0, row[1] + row[4] + safety - e0
+                if i + 1 > a and i < b and j + 1 > c and j < d:
+                    grid[i, j] = True
+                    break
+    return grid, n0, e0
+
+
+def random_obstacles(rng, count=12, extent=30.0):
+    centre = rng.uniform(-extent, extent, size=(count, 2))
+    half = rng.uniform(0.2, 4.0, size=(count, 2))
+    height = rng.uniform(1.0, 30.0, size=count)
+    return np.column_stack([centre, height / 2, half, height / 2])
+
+
+@pytest.mark.parametrize("seed", range(15))
+def test_create_grid_matches_a_brute_force_reference(seed):
+    rng = np.random.default_rng(seed)
+    data = random_obstacles(rng)
+    altitude, safety = rng.uniform(0, 25), rng.uniform(0, 4)
+    grid, n0, e0 = create_grid(data, altitude, safety)
+    expected, en0, ee0 = brute_force_grid(data, altitude, safety)
+    assert (n0, e0) == (en0, ee0)
+    np.testing.assert_array_equal(grid, expected)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_free_cells_keep_the_safety_distance_over_their_whole_square(seed):
+    rng = np.random.default_rng(100 + seed)
+    data = random_obstacles(rng)
+    altitude, safety = 5.0, rng.uniform(0.5, 4)
+    grid, n0, e0 = create_grid(data, altitude, safety)
+    tall = data[data[:, 2] + data[:, 5] + safety > altitude]
+    free = np.argwhere(~grid)
+    # Closest point of each free cell square to each box footprint, then the Euclidean distance.
+    lo = free + (n0, e0)
+    hi = lo + 1
+    for box in tall:
+        bmin = box[:2] - box[3:5]
+        bmax = box[:2] + box[3:5]
+        gap = np.maximum(0, np.maximum(bmin - hi, lo - bmax))
+        assert (np.hypot(gap[:, 0], gap[:, 1]) >= safety - 1e-9).all()
+
+
+def test_grid_rows_increase_northwards_and_offsets_are_the_south_west_corner():
+    # One tall box north-east of a low one; offsets from the low box's south-west corner.
+    data = np.array([[20.5, 10.5, 50, 0.5, 0.5, 50], [0.5, 0.5, 1, 0.5, 0.5, 1]])
+    grid, north_offset, east_offset = create_grid(data, drone_altitude=5, safety_distance=0)
+    assert (north_offset, east_offset) == (0, 0)
+    assert grid.shape == (21, 11)
+    assert np.argwhere(grid).tolist() == [[20, 10]]  # the tall box is in the top (northern) row
+
+
+def test_low_obstacles_are_ignored_unless_within_safety_of_the_altitude():
+    data = np.array([[0, 0, 2, 2, 2, 2]])  # 4 m tall
+    assert not create_grid(data, drone_altitude=10, safety_distance=5)[0].any()
+    assert create_grid(data, drone_altitude=8, safety_distance=5)[0].any()
+
+
+def test_create_grid_rejects_bad_input():
+    with pytest.raises(ValueError, match="N, 6"):
+        create_grid(np.zeros((3, 5)), 5, 5)
+    with pytest.raises(ValueError, match="safety_distance"):
+        create_grid(np.ones((1, 6)), 5, -1)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Supercover and line of sight
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_supercover_contains_every_cell_the_segment_touches(seed):
+    rng = np.random.default_rng(seed)
+    p0, p1 = rng.integers(-20, 20, size=(2, 2))
+    cells = {tuple(c) for c in supercover(p0, p1).tolist()}
+    # Dense samples along the segment, nudged a hair each way so points on cell edges count for both cells.
+    t = np.linspace(0, 1, 20001)[:, None]
+    points = (p0 + 0.5) + t * (p1 - p0)
+    for nudge in ([1e-7, 1e-7], [1e-7, -1e-7], [-1e-7, 1e-7], [-1e-7, -1e-7]):
+        touched = {tuple(c) for c in np.floor(points + nudge).astype(int).tolist()}
+        assert touched <= cells
+    # ...and nothing far from it: every cell is within half a diagonal of the line.
+    d = np.array(sorted(cells)) + 0.5 - (p0 + 0.5)
+    direction = (p1 - p0) / max(np.linalg.norm(p1 - p0), 1e-12)
+    offset = np.abs(d[:, 0] * direction[1] - d[:, 1] * direction[0])
+    assert (offset <= math.sqrt(2) / 2 + 1e-9).all()
+
+
+def test_supercover_is_symmetric():
+    a = {tuple(c) for c in supercover((2, 3), (-7, 11)).tolist()}
+    b = {tuple(c) for c in supercover((-7, 11), (2, 3)).tolist()}
+    assert a == b
+
+
+def test_line_of_sight_blocked_by_a_corner_the_segment_only_grazes():
+    # The segment (0,0)->(2,2) passes exactly through the corner shared by (0,1) and (1,0).
+    grid = np.zeros((3, 3), dtype=bool)
+    grid[1, 0] = True
+    assert not line_of_sight(grid, (0, 0), (2, 2))
+    assert line_of_sight(grid, (0, 0), (0, 2))
+    assert not line_of_sight(grid, (0, 0), (5, 0))  # off the grid
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Pruning
+
+
+def test_open_grid_prunes_to_start_and_goal():
+    grid = np.zeros((30, 40), dtype=bool)
+    path = GridPlanner(grid).plan((1, 2), (27, 35))
+    assert prune_path(grid, path.cells).tolist() == [[1, 2], [27, 35]]
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_every_pruned_leg_is_collision_free_on_random_maps(seed):
+    rng = np.random.default_rng(1000 + seed)
+    grid = random_grid(rng, shape=(50, 50), density=0.35, blob=bool(seed % 2))
+    free = np.argwhere(~grid)
+    planner = GridPlanner(grid)
+    for _ in range(5):
+        start, goal = free[rng.integers(len(free))], free[rng.integers(len(free))]
+        try:
+            path = planner.plan(start, goal)
+        except NoPathError:
+            continue
+        pruned = prune_path(grid, path.cells)
+        assert pruned[0].tolist() == list(start) and pruned[-1].tolist() == list(goal)
+        for a, b in zip(pruned[:-1], pruned[1:]):
+            legs = supercover(a, b)
+            assert not grid[legs[:, 0], legs[:, 1]].any()
+        # Pruned cells are a subsequence of the path, and the route only gets shorter.
+        assert path_length(pruned) <= path.cost + 1e-9
+        assert path_length(pruned) >= np.hypot(*(goal - start)) - 1e-9
+
+
+def test_prune_collinear_uses_a_tolerance_in_metres():
+    points = np.array([[0.0, 0.0], [5.0, 0.3], [10.0, 0.0]])
+    assert len(prune_collinear(points, tolerance_m=0.2)) == 3
+    assert prune_collinear(points, tolerance_m=0.5).tolist() == [[0, 0], [10, 0]]
+
+
+def test_prune_collinear_does_not_let_small_offsets_accumulate():
+    # A slow arc: each point is within 0.2 m of its neighbours' chord, but not of the whole span's chord.
+    x = np.linspace(0, 100, 51)
+    points = np.column_stack([x, 0.002 * (x - 50) ** 2])
+    pruned = prune_collinear(points, tolerance_m=0.2)
+    for a, b in zip(pruned[:-1], pruned[1:]):
+        inside = points[(points[:, 0] >= a[0]) & (points[:, 0] <= b[0])]
+        t = (inside[:, 0] - a[0]) / (b[0] - a[0])
+        chord = a[1] + t * (b[1] - a[1])
+        assert (np.abs(inside[:, 1] - chord) <= 0.2 + 1e-9).all()
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Waypoints
+
+
+def test_waypoint_headings_point_along_the_arriving_leg():
+    cells = np.array([[0, 0], [10, 0], [10, 10], [0, 0]])
+    waypoints = waypoints_from_cells(cells, north_offset=-5, east_offset=3, altitude_m=7)
+    assert waypoints[:, :3].tolist() == [[-4.5, 3.5, 7], [5.5, 3.5, 7], [5.5, 13.5, 7], [-4.5, 3.5, 7]]
+    np.testing.assert_allclose(waypoints[:, 3], [0, 0, math.pi / 2, -3 * math.pi / 4])
+
+
+def test_single_point_heading_is_zero():
+    assert headings_along(np.array([[1.0, 2.0]])).tolist() == [0.0]
+
+
+def test_grid_map_plans_between_map_points():
+    data = np.array([[0, 0, 10, 1, 30, 10], [-40, -40, 1, 1, 1, 1], [40, 40, 1, 1, 1, 1]])
+    grid_map = GridMap.build(data, altitude_m=5, safety_m=2)
+    plan = grid_map.plan((-20.0, 0.0), (20.0, 0.0))
+    assert plan.waypoints[0, :2].tolist() == [-19.5, 0.5]
+    assert plan.waypoints[-1, :2].tolist() == [20.5, 0.5]
+    assert (plan.waypoints[:, 2] == 5).all()
+    # The wall spans east -30..30 plus 2 m margin: the route must go round an end of it.
+    assert np.abs(plan.waypoints[:, 1]).max() >= 32
+    assert plan.length_m <= plan.cost_m + 1e-9
+    assert plan.stats()["waypoints_after_pruning"] == len(plan.waypoints)

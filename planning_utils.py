@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -344,6 +344,11 @@ class GridPlanner:
     def _flat(self, cell: tuple[int, int]) -> int:
         return (cell[0] + 1) * self._width + cell[1] + 1
 
+    def is_blocked_inside(self, cell: Sequence[int]) -> bool:
+        """True if ``cell`` is on the grid and blocked."""
+        n, m = self.grid.shape
+        return 0 <= cell[0] < n and 0 <= cell[1] < m and bool(self.grid[cell[0], cell[1]])
+
     def check_cell(self, which: str, cell: Sequence[int]) -> tuple[int, int]:
         """Return ``cell`` as a tuple of ints, or raise :class:`OutsideGridError` / :class:`BlockedCellError`."""
         cell = (int(cell[0]), int(cell[1]))
@@ -519,38 +524,53 @@ def headings_along(points_ne: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Plan:
-    """A planned route and how it was found.
+    """A planned route and how it was found; every planner returns one.
 
-    ``waypoints`` is ``(K, 4)``: ``[north_m, east_m, altitude_m, heading_rad]`` in the map frame, first at the
-    start. ``cost_m`` is the optimal grid cost, ``length_m`` the length of the pruned route, ``search_ms`` the
-    search time, ``cells`` the unpruned path.
+    ``waypoints`` is ``(K, 4)``: ``[north_m, east_m, altitude_m, heading_rad]`` in the map frame, the first at the
+    start. ``raw_path_ne`` ``(R, 2)`` is the route before pruning in map metres (cell centres for grid planners),
+    ``length_m`` the length of the flown (pruned) route, ``cost_m`` the optimal cost on the planner's own graph,
+    ``search_ms`` the search time, ``expanded`` the number of nodes the search expanded. ``extra`` holds
+    planner-specific numbers; ``structure`` what a plot may draw under the path (e.g. a graph's edges).
     """
 
+    planner: str
     waypoints: np.ndarray
-    cells: np.ndarray
-    cost_m: float
+    raw_path_ne: np.ndarray
     length_m: float
-    expanded: int
+    cost_m: float
     search_ms: float
-    start_cell: tuple[int, int]
-    goal_cell: tuple[int, int]
+    expanded: int
+    extra: dict = field(default_factory=dict)
+    structure: dict = field(default_factory=dict)
 
     def stats(self) -> dict:
         """Plain-number summary for printing or JSON."""
         return {
+            "planner": self.planner,
             "cost_m": round(self.cost_m, 3),
             "length_m": round(self.length_m, 3),
-            "expanded": self.expanded,
+            "expanded": int(self.expanded),
             "search_ms": round(self.search_ms, 3),
-            "waypoints_before_pruning": int(len(self.cells)),
+            "waypoints_before_pruning": int(len(self.raw_path_ne)),
             "waypoints_after_pruning": int(len(self.waypoints)),
+            **self.extra,
         }
 
 
 @dataclass(frozen=True)
 class GridMap:
-    """A configuration-space grid for one altitude and margin, with its planner and offsets (metres)."""
+    """A configuration-space grid for one altitude and safety margin (metres), with its planner.
 
+    The grid spans the obstacles' footprints, so two low posts mark the corners of this 80 m map; the wall is
+    2 m thick, 60 m long and 20 m tall, and with a 2 m margin the route passes its end 32.5 m east:
+
+    >>> boxes = np.array([[0, 0, 10, 1, 30, 10], [-40, -40, 1, 1, 1, 1], [40, 40, 1, 1, 1, 1]])
+    >>> plan = GridMap.build(boxes, altitude_m=5, safety_m=2).plan((-20.0, 0.0), (20.0, 0.0))
+    >>> plan.waypoints[:, :3].tolist()
+    [[-19.5, 0.5, 5.0], [-3.5, 32.5, 5.0], [3.5, 32.5, 5.0], [20.5, 0.5, 5.0]]
+    """
+
+    obstacles: np.ndarray
     grid: np.ndarray
     north_offset: int
     east_offset: int
@@ -561,34 +581,59 @@ class GridMap:
     @classmethod
     def build(cls, obstacles: np.ndarray, altitude_m: float, safety_m: float) -> GridMap:
         grid, north_offset, east_offset = create_grid(obstacles, altitude_m, safety_m)
-        return cls(grid, north_offset, east_offset, altitude_m, safety_m, GridPlanner(grid))
+        return cls(obstacles, grid, north_offset, east_offset, altitude_m, safety_m, GridPlanner(grid))
 
     def cell_of(self, north_m: float, east_m: float) -> tuple[int, int]:
+        """Grid cell containing the map point ``(north_m, east_m)``."""
         return map_to_cell(north_m, east_m, self.north_offset, self.east_offset)
 
     def centre_of(self, cell: Sequence[int]) -> tuple[float, float]:
+        """Map point ``(north_m, east_m)`` at the centre of ``cell``."""
         return cell_to_map(cell, self.north_offset, self.east_offset)
 
-    def plan(self, start_ne: Sequence[float], goal_ne: Sequence[float]) -> Plan:
+    def inside_obstacle(self, north_m: float, east_m: float) -> bool:
+        """True if the point is inside an obstacle's footprint taller than the altitude (ignoring the margin)."""
+        n, e, alt, dn, de, da = self.obstacles.T
+        return bool(
+            ((np.abs(n - north_m) < dn) & (np.abs(e - east_m) < de) & (alt + da > self.altitude_m)).any()
+        )
+
+    def plan(self, start_ne: Sequence[float], goal_ne: Sequence[float], *, snap_start: bool = False) -> Plan:
         """Plan from map point ``start_ne`` to ``goal_ne`` (``(north_m, east_m)``), prune, make waypoints.
 
-        The route starts and ends at the centres of the start and goal cells (within 0.71 m of the points).
-        Raises the :class:`PlanningError` subclasses of :meth:`GridPlanner.plan`.
+        The route runs between cell centres (within 0.71 m of the points). With ``snap_start``, a start inside
+        the safety margin (but not inside an obstacle) plans from the nearest free cell, and the route begins at
+        the start point itself with a leg out to that cell.
+
+        Raises
+        ------
+        OutsideGridError, BlockedCellError, NoPathError
+            As :meth:`GridPlanner.plan`.
         """
         start_cell = self.cell_of(*start_ne)
         goal_cell = self.cell_of(*goal_ne)
+        lead_in = None
+        if snap_start and self.planner.is_blocked_inside(start_cell) and not self.inside_obstacle(*start_ne):
+            nearest = nearest_free_cell(self.grid, start_cell)
+            if nearest is not None:
+                lead_in, start_cell = np.asarray(start_ne, dtype=np.float64), nearest
         t0 = time.perf_counter()
         path = self.planner.plan(start_cell, goal_cell)
         search_ms = (time.perf_counter() - t0) * 1e3
         pruned = prune_path(self.grid, path.cells)
         waypoints = waypoints_from_cells(pruned, self.north_offset, self.east_offset, self.altitude_m)
+        raw = path.cells + (self.north_offset + 0.5, self.east_offset + 0.5)
+        if lead_in is not None:
+            points = np.vstack([lead_in, waypoints[:, :2]])
+            waypoints = np.column_stack([points, np.full(len(points), self.altitude_m), headings_along(points)])
+            raw = np.vstack([lead_in, raw])
         return Plan(
+            planner="grid",
             waypoints=waypoints,
-            cells=path.cells,
-            cost_m=path.cost,
+            raw_path_ne=raw,
             length_m=path_length(waypoints[:, :2]),
-            expanded=path.expanded,
+            cost_m=path.cost,
             search_ms=search_ms,
-            start_cell=start_cell,
-            goal_cell=goal_cell,
+            expanded=path.expanded,
+            extra={"start_cell": list(start_cell), "goal_cell": list(goal_cell)},
         )

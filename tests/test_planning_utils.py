@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from planning_utils import (
+    BlockedCellError,
     GridMap,
     GridPlanner,
     MapFormatError,
@@ -284,3 +285,20 @@ def test_grid_map_plans_between_map_points():
     assert np.abs(plan.waypoints[:, 1]).max() >= 32
     assert plan.length_m <= plan.cost_m + 1e-9
     assert plan.stats()["waypoints_after_pruning"] == len(plan.waypoints)
+
+
+def test_start_inside_the_margin_plans_from_the_nearest_free_cell():
+    boxes = np.array([[0, 0, 10, 1, 30, 10], [-40, -40, 1, 1, 1, 1], [40, 40, 1, 1, 1, 1]])
+    grid_map = GridMap.build(boxes, altitude_m=5, safety_m=2)
+    start = (-2.5, 0.2)  # 1.5 m from the wall: inside the 2 m margin, outside the wall
+    with pytest.raises(BlockedCellError):
+        grid_map.plan(start, (20.0, 0.0))
+    plan = grid_map.plan(start, (20.0, 0.0), snap_start=True)
+    assert plan.waypoints[0, :2].tolist() == [-2.5, 0.2]
+    assert plan.waypoints[1, :2].tolist() == [-3.5, 0.5]  # the nearest free cell's centre, then on as usual
+
+
+def test_start_inside_an_obstacle_is_never_snapped():
+    boxes = np.array([[0, 0, 10, 1, 30, 10], [-40, -40, 1, 1, 1, 1], [40, 40, 1, 1, 1, 1]])
+    with pytest.raises(BlockedCellError):
+        GridMap.build(boxes, altitude_m=5, safety_m=2).plan((0.0, 0.0), (20.0, 0.0), snap_start=True)

@@ -210,6 +210,13 @@ class Telemetry:
         return LocalNED(self.north_m, self.east_m, self.down_m)
 
     @property
+    def on_ground(self) -> bool:
+        """Landed: EXTENDED_SYS_STATE says ON_GROUND, or (without it) near home altitude and not descending."""
+        if self.landed_state is not LandedState.UNDEFINED:
+            return self.landed_state is LandedState.ON_GROUND
+        return self.relative_alt_m < 0.3 and abs(self.v_down_mps) < 0.2
+
+    @property
     def ground_speed_mps(self) -> float:
         return math.hypot(self.local_v_north_mps, self.local_v_east_mps)
 

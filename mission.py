@@ -1,0 +1,611 @@
+"""The mission state machine: arm, plan, take off, fly the waypoints, land at the goal, disarm.
+
+The machine is data: :data:`TRANSITIONS` maps ``(MissionState, MissionEvent)`` to the next state and
+:func:`next_state` refuses anything else. :class:`Mission` only talks to an injected vehicle (anything with the
+methods of :class:`Vehicle`, e.g. ``vehicle.MavlinkVehicle`` or a test fake) and never imports pymavlink.
+
+Frames: waypoints are in the MAP frame (NED at the map's lat0/lon0, altitude 0 = home altitude) as
+``[north_m, east_m, altitude_m, heading_rad]``. The vehicle is commanded in the autopilot's local frame;
+``vehicle.map_offset(map_origin)`` gives ``map = local + offset`` once, before arming.
+
+Safety: any failure after the takeoff command lands the vehicle (or holds it, if landing cannot be commanded)
+before the error propagates; Ctrl-C in flight lands first and then re-raises KeyboardInterrupt; a lost link is
+waited for ``link_lost_timeout_s`` and then reported (the autopilot's own failsafe owns the vehicle).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from frames import Geodetic, LocalNED
+
+log = logging.getLogger(__name__)
+
+
+# ------------------------------------------------------------------------------------------ state machine
+class MissionState(enum.Enum):
+    MANUAL = "manual"  # on the ground, disarmed, not under our control (start and normal end)
+    ARMING = "arming"
+    PLANNING = "planning"
+    TAKEOFF = "takeoff"
+    WAYPOINT = "waypoint"
+    LANDING = "landing"
+    DISARMING = "disarming"
+    FAILED = "failed"  # terminal: we could not bring the vehicle back to MANUAL (link lost, could not land/disarm)
+
+
+class MissionEvent(enum.Enum):
+    START = "start"
+    ARMED = "armed"
+    ARM_FAILED = "arm failed"  # never armed: nothing to undo
+    PLANNED = "planned"
+    NO_PATH = "no path"
+    TAKEOFF_DONE = "takeoff done"
+    WAYPOINT_REACHED = "waypoint reached"
+    GOAL_REACHED = "goal reached"
+    ABORT = "abort"  # a failure or Ctrl-C: land if flying, disarm if armed on the ground
+    LANDED = "landed"
+    LAND_FAILED = "land failed"  # landing could not be commanded: holding
+    DISARMED = "disarmed"
+    DISARM_FAILED = "disarm failed"
+    LINK_LOST = "link lost"
+
+
+S, E = MissionState, MissionEvent
+TRANSITIONS: dict[tuple[MissionState, MissionEvent], MissionState] = {
+    (S.MANUAL, E.START): S.ARMING,
+    (S.ARMING, E.ARMED): S.PLANNING,
+    (S.ARMING, E.ARM_FAILED): S.MANUAL,
+    (S.ARMING, E.ABORT): S.DISARMING,
+    (S.PLANNING, E.PLANNED): S.TAKEOFF,
+    (S.PLANNING, E.NO_PATH): S.DISARMING,
+    (S.PLANNING, E.ABORT): S.DISARMING,
+    (S.TAKEOFF, E.TAKEOFF_DONE): S.WAYPOINT,
+    (S.TAKEOFF, E.ABORT): S.LANDING,
+    (S.WAYPOINT, E.WAYPOINT_REACHED): S.WAYPOINT,
+    (S.WAYPOINT, E.GOAL_REACHED): S.LANDING,
+    (S.WAYPOINT, E.ABORT): S.LANDING,
+    (S.LANDING, E.LANDED): S.DISARMING,
+    (S.LANDING, E.LAND_FAILED): S.FAILED,
+    (S.DISARMING, E.DISARMED): S.MANUAL,
+    (S.DISARMING, E.DISARM_FAILED): S.FAILED,
+    **{(state, E.LINK_LOST): S.FAILED
+       for state in (S.ARMING, S.PLANNING, S.TAKEOFF, S.WAYPOINT, S.LANDING, S.DISARMING)},
+}
+del S, E
+
+
+class IllegalTransition(ValueError):
+    """``event`` is not allowed in ``state``."""
+
+    def __init__(self, state: MissionState, event: MissionEvent):
+        self.state, self.event = state, event
+        super().__init__(f"event {event.name} is not allowed in state {state.name}")
+
+
+def next_state(state: MissionState, event: MissionEvent) -> MissionState:
+    """The state after ``event`` in ``state``, from :data:`TRANSITIONS`.
+
+    >>> next_state(MissionState.MANUAL, MissionEvent.START)
+    <MissionState.ARMING: 'arming'>
+    """
+    try:
+        return TRANSITIONS[(state, event)]
+    except KeyError:
+        raise IllegalTransition(state, event) from None
+
+
+# ---------------------------------------------------------------------------------------------- errors
+class MissionError(Exception):
+    """Base of the mission's errors. ``result`` holds what happened up to the failure."""
+
+    result: MissionResult | None = None
+
+
+class ArmingFailed(MissionError):
+    """The autopilot refused to arm until the readiness timeout; ``reason`` is its latest answer."""
+
+    def __init__(self, timeout_s: float, attempts: int, reason: str):
+        self.timeout_s, self.attempts, self.reason = timeout_s, attempts, reason
+        super().__init__(f"the autopilot refused to arm for {timeout_s:g} s ({attempts} attempts): {reason}")
+
+
+class NoPathFound(MissionError):
+    """The planner found no path; the vehicle was disarmed and never took off."""
+
+
+class PlanningFailed(MissionError):
+    """The planner raised something other than a no-path error; the vehicle was disarmed and never took off."""
+
+
+class FlightAborted(MissionError):
+    """A failure after takeoff; the message says what failed and whether the vehicle landed or is holding."""
+
+
+class LinkLostInFlight(MissionError):
+    """The link stayed lost for ``link_lost_timeout_s``; the autopilot's failsafe owns the vehicle."""
+
+
+# ------------------------------------------------------------------------------------------- interfaces
+class Telemetry(Protocol):
+    """The telemetry fields the mission reads (``vehicle.Telemetry`` has them; SI units, autopilot local NED)."""
+
+    armed: bool
+    north_m: float
+    east_m: float
+    down_m: float
+    local_v_north_mps: float
+    local_v_east_mps: float
+    local_v_down_mps: float
+
+    @property
+    def on_ground(self) -> bool: ...
+
+
+class Vehicle(Protocol):
+    """What the mission needs from a vehicle (``vehicle.MavlinkVehicle`` implements it)."""
+
+    @property
+    def telemetry(self) -> Telemetry: ...
+
+    @property
+    def link_ok(self) -> bool: ...
+
+    def map_offset(self, map_origin: Geodetic) -> LocalNED: ...
+
+    def arm(self) -> None: ...
+
+    def disarm(self) -> None: ...
+
+    def takeoff(self, altitude_m: float) -> LocalNED: ...
+
+    def goto_local(self, north_m: float, east_m: float, down_m: float, yaw_rad: float) -> None: ...
+
+    def land(self) -> None: ...
+
+    def hold(self) -> None: ...
+
+    def release_control(self) -> None: ...
+
+
+PlanFn = Callable[[float, float], np.ndarray]
+
+
+@dataclass
+class MissionResult:
+    """What a mission did. Lengths in m, times in s, positions in the map frame.
+
+    ``planned_length_m`` counts the climb from the start to the first waypoint, the waypoint polyline and the
+    descent from the last waypoint to the ground; ``flown_length_m`` is the 3D length of ``track`` (rows
+    ``[time_s, north_m, east_m, altitude_m]`` from the takeoff command to touchdown). ``landing_error_m`` is the
+    horizontal distance from the touchdown point to the last waypoint.
+    """
+
+    final_state: MissionState
+    completed: bool = False
+    waypoints: np.ndarray = field(default_factory=lambda: np.empty((0, 4)))
+    planned_length_m: float = math.nan
+    flown_length_m: float = math.nan
+    flight_time_s: float = math.nan
+    landing_error_m: float = math.nan
+    track: np.ndarray = field(default_factory=lambda: np.empty((0, 4)))
+    history: list[tuple[MissionState, MissionEvent, MissionState]] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """One line: planned length, flown length, flight time, landing error."""
+        return (f"planned {self.planned_length_m:.1f} m, flown {self.flown_length_m:.1f} m, "
+                f"flight time {self.flight_time_s:.1f} s, landing error {self.landing_error_m:.2f} m")
+
+
+# ----------------------------------------------------------------------------------------------- geometry
+def leg_headings(waypoints: np.ndarray, initial_rad: float = 0.0, min_leg_m: float = 0.5) -> np.ndarray:
+    """Heading (rad, from north, clockwise) to fly at each waypoint: along the leg that arrives there.
+
+    The first waypoint takes the first leg's heading (turn on the spot before leaving); legs shorter than
+    ``min_leg_m`` keep the previous heading.
+
+    >>> np.round(leg_headings(np.array([[0, 0, 5, 0], [10, 0, 5, 0], [10, 10, 5, 0]])), 3).tolist()
+    [0.0, 0.0, 1.571]
+    """
+    headings = np.empty(len(waypoints))
+    previous = initial_rad
+    for i in range(len(waypoints)):
+        j = max(i, 1)
+        if j < len(waypoints):
+            d_north, d_east = waypoints[j, :2] - waypoints[j - 1, :2]
+            if math.hypot(d_north, d_east) >= min_leg_m:
+                previous = math.atan2(d_east, d_north) % (2 * math.pi)
+        headings[i] = previous
+    return headings
+
+
+def turn_angle_rad(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
+    """Angle (rad, 0..pi) between legs a->b and b->c in the horizontal plane; 0 for a degenerate leg."""
+    u, v = np.asarray(b[:2], float) - a[:2], np.asarray(c[:2], float) - b[:2]
+    nu, nv = np.hypot(*u), np.hypot(*v)
+    if nu < 1e-6 or nv < 1e-6:
+        return 0.0
+    return float(math.acos(max(-1.0, min(1.0, float(u @ v) / (nu * nv)))))
+
+
+def deadband_m(speed_mps: float, turn_rad: float, next_leg_m: float, *, lookahead_s: float = 1.5,
+               corner_cut_m: float = 0.5, min_m: float = 1.0, max_m: float = 15.0) -> float:
+    """How close (horizontally, m) to an intermediate waypoint counts as reached.
+
+    Wide when the heading barely changes, tight at sharp turns: switching ``d`` metres early makes the vehicle
+    cut the corner by at most ``d * sin(turn)``, so ``d <= corner_cut_m / sin(turn)``; ``speed * lookahead_s``
+    keeps it flying through instead of braking; never more than half the next leg nor outside [min_m, max_m].
+
+    >>> deadband_m(10.0, 0.0, 100.0), deadband_m(10.0, math.pi / 2, 100.0), deadband_m(0.0, 0.0, 100.0)
+    (15.0, 1.0, 1.0)
+    """
+    d = min(max(speed_mps, 0.0) * lookahead_s, max_m, 0.5 * next_leg_m)
+    sin_turn = math.sin(min(turn_rad, math.pi / 2))
+    if sin_turn > 1e-9:
+        d = min(d, corner_cut_m / sin_turn)
+    return max(d, min_m)
+
+
+def path_length_m(points: np.ndarray) -> float:
+    """3D length of a polyline given as rows whose first three columns are north, east, altitude (m)."""
+    if len(points) < 2:
+        return 0.0
+    return float(np.linalg.norm(np.diff(np.asarray(points, float)[:, :3], axis=0), axis=1).sum())
+
+
+# ------------------------------------------------------------------------------------------------ mission
+class _Abort(Exception):
+    """Internal: a timeout or refusal during flight that must end in a landing."""
+
+
+class Mission:
+    """Fly ``plan_fn``'s waypoints with ``vehicle``; see the module docstring for the flow and the failures.
+
+    Parameters
+    ----------
+    vehicle : Vehicle
+        Connected vehicle; the mission never closes it.
+    plan_fn : callable ``(start_north_m, start_east_m) -> ndarray (K, 4)``
+        Map-frame waypoints ``[north_m, east_m, altitude_m, heading_rad]``; called after arming. Altitude NaN
+        means ``altitude_m``. The heading column is ignored: the mission flies along each leg.
+    altitude_m : float
+        Flight altitude above home (m), for waypoints without one.
+    map_origin : Geodetic
+        The map's lat0/lon0 (alt 0).
+    no_path_errors : tuple of exception types
+        What ``plan_fn`` raises when there is no path (e.g. ``planning_utils.NoPathError``).
+    vehicle_errors : tuple of exception types
+        What vehicle calls raise on refusal/timeout (e.g. ``vehicle.VehicleError``): arming is retried on these.
+    clock, sleep : callables
+        Injected for tests (monotonic seconds; sleep seconds).
+    """
+
+    def __init__(self, vehicle: Vehicle, plan_fn: PlanFn, *, altitude_m: float, map_origin: Geodetic,
+                 no_path_errors: tuple[type[BaseException], ...] = (NoPathFound,),
+                 vehicle_errors: tuple[type[BaseException], ...] = (Exception,),
+                 arm_timeout_s: float = 60.0, arm_retry_s: float = 1.0,
+                 takeoff_timeout_s: float = 60.0, leg_timeout_s: float = 60.0, min_speed_mps: float = 1.0,
+                 landing_timeout_s: float = 120.0, disarm_timeout_s: float = 15.0,
+                 link_lost_timeout_s: float = 30.0,
+                 goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, altitude_tolerance_m: float = 1.0,
+                 corner_cut_m: float = 0.5, lookahead_s: float = 1.5,
+                 poll_s: float = 0.05, track_interval_s: float = 0.2,
+                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
+        if not altitude_m > 0:
+            raise ValueError(f"altitude_m must be > 0, got {altitude_m}")
+        self.vehicle, self.plan_fn = vehicle, plan_fn
+        self.altitude_m, self.map_origin = float(altitude_m), map_origin
+        self.no_path_errors = tuple(no_path_errors) + (NoPathFound,)
+        self.vehicle_errors = tuple(vehicle_errors)
+        self.arm_timeout_s, self.arm_retry_s = arm_timeout_s, arm_retry_s
+        self.takeoff_timeout_s, self.leg_timeout_s, self.min_speed_mps = takeoff_timeout_s, leg_timeout_s, min_speed_mps
+        self.landing_timeout_s, self.disarm_timeout_s = landing_timeout_s, disarm_timeout_s
+        self.link_lost_timeout_s = link_lost_timeout_s
+        self.goal_tolerance_m, self.stop_speed_mps = goal_tolerance_m, stop_speed_mps
+        self.altitude_tolerance_m = altitude_tolerance_m
+        self.corner_cut_m, self.lookahead_s = corner_cut_m, lookahead_s
+        self.poll_s, self.track_interval_s = poll_s, track_interval_s
+        self.clock, self.sleep = clock, sleep
+        self.state = MissionState.MANUAL
+        self.result = MissionResult(final_state=self.state)
+        self._offset = LocalNED(0.0, 0.0, 0.0)
+        self._track: list[tuple[float, float, float, float]] = []
+        self._takeoff_s = math.nan
+
+    # ------------------------------------------------------------------------------------------ plumbing
+    def _fire(self, event: MissionEvent) -> MissionState:
+        new = next_state(self.state, event)
+        log.info("%s --%s--> %s", self.state.name, event.name, new.name)
+        self.result.history.append((self.state, event, new))
+        self.state = self.result.final_state = new
+        return new
+
+    def _map_position(self) -> LocalNED:
+        """Vehicle position in the map frame (down = -altitude above home)."""
+        t = self.vehicle.telemetry
+        return LocalNED(t.north_m + self._offset.north_m, t.east_m + self._offset.east_m,
+                        t.down_m + self._offset.down_m)
+
+    def _to_local(self, north_m: float, east_m: float, altitude_m: float) -> LocalNED:
+        return LocalNED(north_m - self._offset.north_m, east_m - self._offset.east_m,
+                        -altitude_m - self._offset.down_m)
+
+    def _sample(self, force: bool = False) -> None:
+        now = self.clock()
+        if force or not self._track or now - self._track[-1][0] >= self.track_interval_s:
+            p = self._map_position()
+            self._track.append((now, p.north_m, p.east_m, p.altitude_m))
+
+    def _tick(self) -> None:
+        """One poll: wait, record the track, and notice a lost link."""
+        self.sleep(self.poll_s)
+        if not self.vehicle.link_ok:
+            self._link_lost()
+        self._sample()
+
+    def _link_lost(self) -> None:
+        """Wait up to ``link_lost_timeout_s`` for the link; if it comes back, abort (land); else fail."""
+        log.error("link lost in state %s; waiting up to %g s for it", self.state.name, self.link_lost_timeout_s)
+        deadline = self.clock() + self.link_lost_timeout_s
+        while self.clock() < deadline:
+            self.sleep(self.poll_s)
+            if self.vehicle.link_ok:
+                log.warning("link back after an outage")
+                if self.state is MissionState.LANDING:
+                    return  # keep landing
+                raise _Abort("the link was lost and came back")
+        self._fire(MissionEvent.LINK_LOST)
+        raise LinkLostInFlight(f"link lost in state {self.state.name} for {self.link_lost_timeout_s:g} s; "
+                               "the autopilot's failsafe now owns the vehicle")
+
+    def _finish(self, error: MissionError | None = None) -> MissionResult:
+        r = self.result
+        r.track = np.array(self._track, float).reshape(-1, 4)
+        if len(r.track):
+            r.flown_length_m = path_length_m(r.track[:, 1:])
+        if error is not None:
+            error.result = r
+        return r
+
+    # ------------------------------------------------------------------------------------------------ run
+    def run(self) -> MissionResult:
+        """Fly the mission.
+
+        Returns
+        -------
+        MissionResult
+            ``completed`` True, ``final_state`` MANUAL: landed at the goal, disarmed, control released.
+
+        Raises
+        ------
+        ArmingFailed
+            Arming refused until ``arm_timeout_s`` (never armed).
+        NoPathFound, PlanningFailed
+            The planner failed; the vehicle was disarmed and never took off.
+        FlightAborted
+            Something failed after takeoff; the vehicle landed (or holds, if landing could not be commanded).
+        LinkLostInFlight
+            The link stayed lost; the autopilot's failsafe owns the vehicle.
+        KeyboardInterrupt
+            Re-raised after landing (in flight) or disarming (on the ground).
+
+        Every MissionError carries ``.result`` (the partial :class:`MissionResult`).
+        """
+        self._offset = self.vehicle.map_offset(self.map_origin)
+        try:
+            self._fire(MissionEvent.START)
+            self._arm()
+            waypoints = self._plan()
+            self._fly(waypoints)
+        except MissionError as exc:
+            self._finish(exc)
+            raise
+        except KeyboardInterrupt:
+            log.warning("interrupted in state %s", self.state.name)
+            self._make_safe("interrupted (Ctrl-C)")
+            self._finish()
+            raise
+        return self._finish()
+
+    def _arm(self) -> None:
+        deadline = self.clock() + self.arm_timeout_s
+        attempts, reason = 0, ""
+        while True:
+            attempts += 1
+            try:
+                self.vehicle.arm()
+                break
+            except self.vehicle_errors as exc:
+                reason = str(exc)
+                if not self.vehicle.link_ok:
+                    self._link_lost_on_ground()
+                if self.clock() + self.arm_retry_s > deadline:
+                    self._fire(MissionEvent.ARM_FAILED)
+                    raise ArmingFailed(self.arm_timeout_s, attempts, reason) from exc
+                log.info("arming refused (%s); retrying", reason)
+                self.sleep(self.arm_retry_s)
+        self._fire(MissionEvent.ARMED)
+
+    def _link_lost_on_ground(self) -> None:
+        self._fire(MissionEvent.LINK_LOST)
+        raise LinkLostInFlight(f"link lost in state {MissionState.ARMING.name}; the vehicle is on the ground")
+
+    def _plan(self) -> np.ndarray:
+        start = self._map_position()
+        log.info("planning from map (%.1f N, %.1f E)", start.north_m, start.east_m)
+        try:
+            waypoints = np.array(self.plan_fn(start.north_m, start.east_m), dtype=float).reshape(-1, 4)
+        except self.no_path_errors as exc:
+            self._fire(MissionEvent.NO_PATH)
+            self._disarm_on_ground()
+            raise NoPathFound(f"no path: {exc}; disarmed, never took off") from exc
+        except Exception as exc:
+            self._fire(MissionEvent.ABORT)
+            self._disarm_on_ground()
+            raise PlanningFailed(f"planning failed: {exc!r}; disarmed, never took off") from exc
+        if len(waypoints) == 0:
+            self._fire(MissionEvent.NO_PATH)
+            self._disarm_on_ground()
+            raise NoPathFound("the planner returned no waypoints; disarmed, never took off")
+        waypoints[np.isnan(waypoints[:, 2]), 2] = self.altitude_m
+        waypoints[:, 3] = leg_headings(waypoints)
+        r = self.result
+        r.waypoints = waypoints
+        r.planned_length_m = (math.dist((start.north_m, start.east_m, start.altitude_m), waypoints[0, :3])
+                              + path_length_m(waypoints) + waypoints[-1, 2])
+        log.info("planned %d waypoints, %.1f m", len(waypoints), r.planned_length_m)
+        self._fire(MissionEvent.PLANNED)
+        return waypoints
+
+    def _disarm_on_ground(self) -> None:
+        self._disarm()
+        self._fire(MissionEvent.DISARMED)
+
+    def _disarm(self) -> None:
+        deadline = self.clock() + self.disarm_timeout_s
+        while self.vehicle.telemetry.armed:
+            try:
+                self.vehicle.disarm()
+            except self.vehicle_errors as exc:
+                if self.clock() >= deadline:
+                    self._fire(MissionEvent.DISARM_FAILED)
+                    raise MissionError(f"could not disarm within {self.disarm_timeout_s:g} s: {exc}") from exc
+                log.info("disarm refused (%s); retrying", exc)
+                self.sleep(0.5)
+
+    # ------------------------------------------------------------------------------------------- flight
+    def _fly(self, waypoints: np.ndarray) -> None:
+        try:
+            self._takeoff(float(waypoints[0, 2]))
+            self._follow(waypoints)
+        except MissionError:
+            raise
+        except (_Abort, *self.vehicle_errors) as exc:
+            log.error("flight failed in state %s: %s", self.state.name, exc)
+            outcome = self._make_safe(str(exc))
+            raise FlightAborted(f"{exc}; {outcome}") from exc
+        self._land()
+        self.result.completed = True
+
+    def _takeoff(self, altitude_m: float) -> None:
+        if not self.vehicle.link_ok:
+            self._link_lost()
+        if not self.vehicle.telemetry.armed:  # e.g. PX4 disarms after ~10 s on the ground while we planned
+            log.warning("the vehicle disarmed while planning; re-arming")
+            self.vehicle.arm()
+        here = self._map_position()
+        self._takeoff_s = self.clock()
+        self._sample(force=True)
+        self.vehicle.takeoff(altitude_m - here.altitude_m)
+        deadline = self.clock() + self.takeoff_timeout_s
+        while self._map_position().altitude_m < altitude_m - self.altitude_tolerance_m:
+            if self.clock() > deadline:
+                raise _Abort(f"takeoff did not reach {altitude_m:.1f} m within {self.takeoff_timeout_s:g} s")
+            self._tick()
+        log.info("takeoff done at %.1f m", self._map_position().altitude_m)
+        self._fire(MissionEvent.TAKEOFF_DONE)
+
+    def _follow(self, waypoints: np.ndarray) -> None:
+        last = len(waypoints) - 1
+        for i, wp in enumerate(waypoints):
+            target = self._to_local(wp[0], wp[1], wp[2])
+            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, float(wp[3]))
+            here = self._map_position()
+            leg_m = math.hypot(wp[0] - here.north_m, wp[1] - here.east_m)
+            deadline = self.clock() + self.leg_timeout_s + leg_m / self.min_speed_mps
+            if i < last:
+                turn = turn_angle_rad(waypoints[i - 1] if i else here_row(here), wp, waypoints[i + 1])
+                next_leg_m = float(np.hypot(*(waypoints[i + 1, :2] - wp[:2])))
+            while not self._reached(wp, i == last, turn if i < last else 0.0, next_leg_m if i < last else 0.0):
+                if self.clock() > deadline:
+                    raise _Abort(f"waypoint {i} ({wp[0]:.1f} N, {wp[1]:.1f} E) not reached in time")
+                self._tick()
+            p = self._map_position()
+            log.info("waypoint %d/%d reached at (%.1f N, %.1f E, %.1f m)", i, last, p.north_m, p.east_m,
+                     p.altitude_m)
+            self._fire(MissionEvent.GOAL_REACHED if i == last else MissionEvent.WAYPOINT_REACHED)
+
+    def _reached(self, wp: np.ndarray, is_last: bool, turn_rad: float, next_leg_m: float) -> bool:
+        p = self._map_position()
+        t = self.vehicle.telemetry
+        horizontal = math.hypot(wp[0] - p.north_m, wp[1] - p.east_m)
+        vertical = abs(wp[2] - p.altitude_m)
+        speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
+        if is_last:
+            return (horizontal <= self.goal_tolerance_m and vertical <= self.altitude_tolerance_m
+                    and speed <= self.stop_speed_mps)
+        band = deadband_m(speed, turn_rad, next_leg_m, lookahead_s=self.lookahead_s,
+                          corner_cut_m=self.corner_cut_m)
+        return horizontal <= band and vertical <= self.altitude_tolerance_m
+
+    def _land(self) -> None:
+        """Land here, wait for touchdown, disarm, release control (LANDING -> DISARMING -> MANUAL)."""
+        self.vehicle.land()
+        deadline = self.clock() + self.landing_timeout_s
+        while not (self.vehicle.telemetry.on_ground or not self.vehicle.telemetry.armed):
+            if self.clock() > deadline:
+                raise _Abort(f"no touchdown within {self.landing_timeout_s:g} s of the land command")
+            self._tick()
+        self._sample(force=True)
+        r = self.result
+        r.flight_time_s = self.clock() - self._takeoff_s
+        if len(r.waypoints):
+            p = self._map_position()
+            r.landing_error_m = math.hypot(p.north_m - r.waypoints[-1, 0], p.east_m - r.waypoints[-1, 1])
+        log.info("landed; %s", r.summary() if self._track else "")
+        self._fire(MissionEvent.LANDED)
+        self._disarm()
+        self.vehicle.release_control()
+        self._fire(MissionEvent.DISARMED)
+
+    def _make_safe(self, why: str) -> str:
+        """After a failure: land if flying (hold if landing fails), disarm if armed on the ground.
+
+        Returns what was done, for the error message. Never raises a vehicle error itself.
+        """
+        if self.state in (MissionState.MANUAL, MissionState.FAILED):
+            return "the vehicle was not armed by us"
+        if self.state in (MissionState.ARMING, MissionState.PLANNING):
+            self._fire(MissionEvent.ABORT)
+            try:
+                self._disarm_on_ground()
+            except (MissionError, *self.vehicle_errors) as exc:
+                return f"could not disarm: {exc}"
+            return "disarmed on the ground, never took off"
+        if self.state is MissionState.DISARMING:
+            try:
+                self._disarm_on_ground()
+            except (MissionError, *self.vehicle_errors) as exc:
+                return f"could not disarm: {exc}"
+            return "landed and disarmed"
+        if self.state is not MissionState.LANDING:
+            self._fire(MissionEvent.ABORT)
+        log.warning("%s: landing where we are", why)
+        try:
+            self._land()
+        except LinkLostInFlight as exc:
+            return str(exc)
+        except (_Abort, MissionError, *self.vehicle_errors) as exc:
+            log.error("could not land (%s); holding", exc)
+            if self.state is MissionState.LANDING:
+                self._fire(MissionEvent.LAND_FAILED)
+            try:
+                self.vehicle.hold()
+            except self.vehicle_errors as hold_exc:
+                return f"could not land ({exc}) nor hold ({hold_exc}); the autopilot's failsafe owns the vehicle"
+            return f"could not land ({exc}); holding position"
+        p = self._map_position()
+        return f"landed at ({p.north_m:.1f} N, {p.east_m:.1f} E) and disarmed"
+
+
+def here_row(p: LocalNED) -> np.ndarray:
+    """A waypoint-shaped row ``[north, east, altitude, 0]`` at map position ``p``."""
+    return np.array([p.north_m, p.east_m, p.altitude_m, 0.0])

@@ -1,0 +1,429 @@
+"""mission.py: the transition table, the geometry helpers, and every flow and failure path with a fake vehicle.
+
+The fake vehicle is a kinematic point that moves towards its setpoint at 5 m/s when the injected fake clock's
+``sleep`` is called, so whole missions run deterministically in milliseconds.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+import mission as m
+from frames import Geodetic, LocalNED
+from mission import MissionEvent as E
+from mission import MissionState as S
+
+ORIGIN = Geodetic(37.79248, -122.39745, 0.0)
+OFFSET = LocalNED(100.0, -50.0, 0.0)  # the autopilot's local origin is 100 m S, 50 m E of the map origin
+
+
+# ----------------------------------------------------------------------------------------- transitions
+@pytest.mark.parametrize("state_event, expected", sorted(m.TRANSITIONS.items(), key=str))
+def test_each_legal_transition(state_event, expected):
+    assert m.next_state(*state_event) is expected
+
+
+ILLEGAL = [(s, e) for s, e in itertools.product(S, E) if (s, e) not in m.TRANSITIONS]
+
+
+@pytest.mark.parametrize("state, event", ILLEGAL)
+def test_each_illegal_transition_raises(state, event):
+    with pytest.raises(m.IllegalTransition, match=event.name):
+        m.next_state(state, event)
+
+
+def test_happy_path_is_the_issue_sequence():
+    state, seen = S.MANUAL, [S.MANUAL]
+    for event in (E.START, E.ARMED, E.PLANNED, E.TAKEOFF_DONE, E.WAYPOINT_REACHED, E.GOAL_REACHED, E.LANDED,
+                  E.DISARMED):
+        state = m.next_state(state, event)
+        seen.append(state)
+    assert seen == [S.MANUAL, S.ARMING, S.PLANNING, S.TAKEOFF, S.WAYPOINT, S.WAYPOINT, S.LANDING, S.DISARMING,
+                    S.MANUAL]
+
+
+def test_failed_is_terminal():
+    assert not [k for k in m.TRANSITIONS if k[0] is S.FAILED]
+
+
+# -------------------------------------------------------------------------------------------- geometry
+def test_leg_headings_follow_each_leg():
+    wps = np.array([[0, 0, 5, 0], [0, 10, 5, 0], [-10, 10, 5, 0], [-10, 10.1, 5, 0]], float)
+    # east (pi/2), east, south (pi), and a 0.1 m leg keeps south
+    assert m.leg_headings(wps) == pytest.approx([math.pi / 2, math.pi / 2, math.pi, math.pi])
+
+
+def test_turn_angle():
+    a, b = np.array([0.0, 0.0]), np.array([10.0, 0.0])
+    assert m.turn_angle_rad(a, b, np.array([20.0, 0.0])) == pytest.approx(0.0)
+    assert m.turn_angle_rad(a, b, np.array([10.0, 5.0])) == pytest.approx(math.pi / 2)
+    assert m.turn_angle_rad(a, b, np.array([0.0, 0.0])) == pytest.approx(math.pi)
+
+
+def test_deadband_wide_on_straights_tight_at_turns():
+    straight = m.deadband_m(8.0, math.radians(2), 100.0)
+    gentle = m.deadband_m(8.0, math.radians(20), 100.0)
+    right_angle = m.deadband_m(8.0, math.radians(90), 100.0)
+    hairpin = m.deadband_m(8.0, math.radians(170), 100.0)
+    assert straight > gentle > right_angle == hairpin == 1.0
+    # corner cut bound: switching d before the corner cuts it by at most d*sin(turn)
+    assert gentle * math.sin(math.radians(20)) <= 0.5 + 1e-9
+
+
+def test_deadband_grows_with_speed_and_respects_the_next_leg():
+    assert m.deadband_m(2.0, 0.0, 100.0) < m.deadband_m(6.0, 0.0, 100.0)
+    assert m.deadband_m(10.0, 0.0, 4.0) == 2.0  # at most half of the next leg
+    assert m.deadband_m(0.0, 0.0, 100.0) == 1.0  # floor
+
+
+def test_path_length():
+    assert m.path_length_m(np.array([[0, 0, 0], [3, 4, 0], [3, 4, 12]])) == pytest.approx(17.0)
+
+
+# ---------------------------------------------------------------------------------------- fake vehicle
+class FakeClock:
+    """Monotonic time that only moves when ``sleep`` is called; ``at(t, fn)`` runs ``fn`` once t is passed."""
+
+    def __init__(self):
+        self.now = 0.0
+        self.tickers = []
+        self._events = []
+
+    def __call__(self):
+        return self.now
+
+    def at(self, t, fn):
+        self._events.append((t, fn))
+
+    def sleep(self, dt):
+        self.now += dt
+        for tick in self.tickers:
+            tick(dt)
+        due = [e for e in self._events if e[0] <= self.now]
+        self._events = [e for e in self._events if e[0] > self.now]
+        for _, fn in due:
+            fn()
+
+
+class Refused(Exception):
+    """Stands in for vehicle.VehicleError."""
+
+
+@dataclass
+class FakeTelemetry:
+    armed: bool = False
+    north_m: float = 0.0
+    east_m: float = 0.0
+    down_m: float = 0.0
+    local_v_north_mps: float = 0.0
+    local_v_east_mps: float = 0.0
+    local_v_down_mps: float = 0.0
+    on_ground: bool = True
+
+
+class FakeVehicle:
+    """A point that flies to its local setpoint at ``speed_mps``, lands at 1.5 m/s; failure knobs below."""
+
+    def __init__(self, clock, *, start=(0.0, 0.0), speed_mps=5.0, arm_refusals=0, climbs=True):
+        self.clock = clock
+        clock.tickers.append(self._step)
+        self.telemetry = FakeTelemetry(north_m=start[0], east_m=start[1])
+        self.link_ok = True
+        self.speed_mps = speed_mps
+        self.arm_refusals = arm_refusals
+        self.disarm_refusals = 0
+        self.climbs = climbs
+        self.mode = "manual"
+        self.setpoint = None
+        self.calls: list[str] = []
+        self.gotos: list[tuple[float, float, float, float]] = []
+        self.fail_on = {}  # method name -> exception to raise (once, or always if "always" in the key)
+
+    def _maybe_fail(self, name):
+        self.calls.append(name)
+        if not self.link_ok:
+            raise Refused(f"{name}: link lost")
+        exc = self.fail_on.pop(name, None) or self.fail_on.get(name + "!")
+        if exc is not None:
+            raise exc
+
+    def map_offset(self, map_origin):
+        assert map_origin == ORIGIN
+        return OFFSET
+
+    def arm(self):
+        self._maybe_fail("arm")
+        if self.arm_refusals > 0:
+            self.arm_refusals -= 1
+            raise Refused("COMPONENT_ARM_DISARM rejected: DENIED: Preflight Fail: ekf2 not ready")
+        self.telemetry.armed = True
+
+    def disarm(self):
+        self._maybe_fail("disarm")
+        if self.disarm_refusals > 0:
+            self.disarm_refusals -= 1
+            raise Refused("disarm refused: not landed")
+        self.telemetry.armed = False
+
+    def takeoff(self, altitude_m):
+        self._maybe_fail("takeoff")
+        t = self.telemetry
+        self.mode, self.setpoint = "offboard", (t.north_m, t.east_m, t.down_m - altitude_m)
+        return LocalNED(*self.setpoint)
+
+    def goto_local(self, north_m, east_m, down_m, yaw_rad):
+        self._maybe_fail("goto_local")
+        self.gotos.append((north_m, east_m, down_m, yaw_rad))
+        self.mode, self.setpoint = "offboard", (north_m, east_m, down_m)
+
+    def land(self):
+        self._maybe_fail("land")
+        self.mode = "land"
+
+    def hold(self):
+        self._maybe_fail("hold")
+        self.mode = "hold"
+
+    def release_control(self):
+        self._maybe_fail("release_control")
+        self.setpoint = None
+
+    def _step(self, dt):
+        t = self.telemetry
+        t.local_v_north_mps = t.local_v_east_mps = t.local_v_down_mps = 0.0
+        if not t.armed:
+            return
+        if self.mode == "offboard" and self.setpoint is not None:
+            target = np.array(self.setpoint)
+            if not self.climbs:
+                target[2] = t.down_m
+            here = np.array([t.north_m, t.east_m, t.down_m])
+            delta = target - here
+            dist = float(np.linalg.norm(delta))
+            step = min(dist, self.speed_mps * dt)
+            if dist > 0:
+                velocity = delta / dist * step / dt
+                t.north_m, t.east_m, t.down_m = here + delta / dist * step
+                t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps = velocity
+        elif self.mode == "land" and t.down_m < 0:
+            t.down_m = min(0.0, t.down_m + 1.5 * dt)
+            t.local_v_down_mps = 1.5
+        t.on_ground = t.down_m >= 0.0
+
+
+def straight_plan(calls):
+    """A plan_fn: from the start (map frame) 60 m north, then 40 m east, at 10 m; records its arguments."""
+
+    def plan(start_north_m, start_east_m):
+        calls.append((start_north_m, start_east_m))
+        return np.array([
+            [start_north_m, start_east_m, 10.0, 0.0],
+            [start_north_m + 30, start_east_m, 10.0, 0.0],  # collinear: flown through
+            [start_north_m + 60, start_east_m, 10.0, 0.0],
+            [start_north_m + 60, start_east_m + 40, 10.0, 0.0],
+        ])
+
+    return plan
+
+
+def make_mission(vehicle, clock, plan_fn, **kwargs):
+    kwargs.setdefault("vehicle_errors", (Refused,))
+    kwargs.setdefault("altitude_m", 10.0)
+    return m.Mission(vehicle, plan_fn, map_origin=ORIGIN, clock=clock, sleep=clock.sleep, **kwargs)
+
+
+@pytest.fixture
+def clock():
+    return FakeClock()
+
+
+# ------------------------------------------------------------------------------------------- the flow
+def test_full_mission(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))  # = map (0, 0): OFFSET is (100, -50)
+    planned = []
+    result = make_mission(v, clock, straight_plan(planned)).run()
+    assert planned == [(pytest.approx(0.0), pytest.approx(0.0))]  # start converted to the map frame
+    assert result.completed and result.final_state is S.MANUAL
+    assert [h[2] for h in result.history] == [S.ARMING, S.PLANNING, S.TAKEOFF, S.WAYPOINT, S.WAYPOINT,
+                                              S.WAYPOINT, S.WAYPOINT, S.LANDING, S.DISARMING, S.MANUAL]
+    # commanded in the autopilot's local frame: map - offset; heading along each leg
+    assert v.gotos[-1] == pytest.approx((60 - 100, 40 + 50, -10.0, math.pi / 2))
+    assert v.gotos[1][3] == pytest.approx(0.0)
+    assert not v.telemetry.armed and v.telemetry.on_ground and v.setpoint is None
+    assert v.calls[-3:] == ["land", "disarm", "release_control"]
+    assert result.landing_error_m < 0.3
+    assert result.planned_length_m == pytest.approx(10 + 100 + 10)
+    # flown: the last metre of the climb blends into the first leg (altitude tolerance 1 m) and the 90 deg
+    # corner is cut by at most 0.5 m: shorter than planned by a couple of metres, never longer
+    assert 117.0 <= result.flown_length_m <= 120.0
+    assert result.flight_time_s == pytest.approx(10 / 5.0 + 100 / 5.0 + 10 / 1.5, abs=0.5)  # climb, legs, land
+    assert result.track.shape[1] == 4 and result.track[-1, 1:3] == pytest.approx([60.0, 40.0], abs=0.3)
+    assert "planned 120.0 m" in result.summary()
+
+
+def test_arm_refused_then_accepted(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0), arm_refusals=2)
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed
+    assert v.calls.count("arm") == 3
+
+
+def test_arm_refused_until_timeout_quotes_the_autopilot(clock):
+    v = FakeVehicle(clock, arm_refusals=10**6)
+    planned = []
+    mission = make_mission(v, clock, straight_plan(planned), arm_timeout_s=10.0)
+    with pytest.raises(m.ArmingFailed, match="ekf2 not ready") as err:
+        mission.run()
+    assert err.value.attempts == 11 and clock.now == pytest.approx(10.0)  # at t = 0, 1, ..., 10 s
+    assert err.value.result.final_state is S.MANUAL
+    assert not planned and "takeoff" not in v.calls and not v.telemetry.armed
+
+
+def test_no_path_disarms_and_never_takes_off(clock):
+    class NoPathError(Exception):  # what planning_utils raises
+        pass
+
+    def plan(n, e):
+        raise NoPathError("goal unreachable")
+
+    v = FakeVehicle(clock)
+    with pytest.raises(m.NoPathFound, match="goal unreachable") as err:
+        make_mission(v, clock, plan, no_path_errors=(NoPathError,)).run()
+    assert "takeoff" not in v.calls and "goto_local" not in v.calls
+    assert not v.telemetry.armed
+    assert [h[1] for h in err.value.result.history] == [E.START, E.ARMED, E.NO_PATH, E.DISARMED]
+    assert err.value.result.final_state is S.MANUAL
+
+
+def test_empty_plan_is_no_path(clock):
+    v = FakeVehicle(clock)
+    with pytest.raises(m.NoPathFound):
+        make_mission(v, clock, lambda n, e: np.empty((0, 4))).run()
+    assert not v.telemetry.armed and "takeoff" not in v.calls
+
+
+def test_planner_crash_disarms(clock):
+    def plan(n, e):
+        raise RuntimeError("planner bug")
+
+    v = FakeVehicle(clock)
+    with pytest.raises(m.PlanningFailed, match="planner bug"):
+        make_mission(v, clock, plan).run()
+    assert not v.telemetry.armed and "takeoff" not in v.calls
+
+
+def test_disarmed_while_planning_rearms_before_takeoff(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    inner = straight_plan([])
+
+    def slow_plan(n, e):
+        v.telemetry.armed = False  # PX4's auto-disarm after ~10 s on the ground
+        return inner(n, e)
+
+    assert make_mission(v, clock, slow_plan).run().completed
+    assert v.calls.count("arm") == 2
+
+
+def test_failure_mid_flight_lands(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(8.0, lambda: v.fail_on.update(goto_local=Refused("SET_POSITION_TARGET refused")))
+    with pytest.raises(m.FlightAborted, match="refused.*landed at") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert "land" in v.calls and not v.telemetry.armed and v.telemetry.on_ground
+    assert err.value.result.final_state is S.MANUAL and not err.value.result.completed
+    assert E.ABORT in [h[1] for h in err.value.result.history]
+
+
+def test_failure_mid_flight_holds_when_landing_fails(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.fail_on["land!"] = Refused("NAV_LAND unsupported")
+
+    def fail():
+        v.fail_on["goto_local"] = Refused("boom")
+
+    clock.at(8.0, fail)
+    with pytest.raises(m.FlightAborted, match="holding") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert v.calls[-1] == "hold" and v.mode == "hold"
+    assert err.value.result.final_state is S.FAILED
+
+
+def test_takeoff_timeout_lands(clock):
+    v = FakeVehicle(clock, climbs=False)
+    with pytest.raises(m.FlightAborted, match="takeoff did not reach"):
+        make_mission(v, clock, straight_plan([]), takeoff_timeout_s=5.0).run()
+    assert "land" in v.calls and not v.telemetry.armed
+
+
+def test_ctrl_c_in_flight_lands_then_reraises(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def interrupt():
+        raise KeyboardInterrupt
+
+    clock.at(10.0, interrupt)
+    mission = make_mission(v, clock, straight_plan([]))
+    with pytest.raises(KeyboardInterrupt):
+        mission.run()
+    assert v.calls[-3:] == ["land", "disarm", "release_control"]
+    assert v.telemetry.on_ground and not v.telemetry.armed
+    assert mission.state is S.MANUAL and not mission.result.completed
+
+
+def test_ctrl_c_while_planning_disarms_then_reraises(clock):
+    def plan(n, e):
+        raise KeyboardInterrupt
+
+    v = FakeVehicle(clock)
+    with pytest.raises(KeyboardInterrupt):
+        make_mission(v, clock, plan).run()
+    assert not v.telemetry.armed and "takeoff" not in v.calls
+
+
+def test_link_lost_for_good_fails_without_commands(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def lose():
+        v.link_ok = False
+
+    clock.at(10.0, lose)
+    with pytest.raises(m.LinkLostInFlight, match="failsafe") as err:
+        make_mission(v, clock, straight_plan([]), link_lost_timeout_s=5.0).run()
+    assert err.value.result.final_state is S.FAILED
+    assert 15.0 <= clock.now <= 15.2  # waited the bounded time, then reported
+    assert "land" not in v.calls
+
+
+def test_link_back_after_outage_lands(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(10.0, lambda: setattr(v, "link_ok", False))
+    clock.at(12.0, lambda: setattr(v, "link_ok", True))
+    with pytest.raises(m.FlightAborted, match="lost and came back.*landed"):
+        make_mission(v, clock, straight_plan([]), link_lost_timeout_s=5.0).run()
+    assert not v.telemetry.armed and v.telemetry.on_ground
+
+
+def test_disarm_refused_until_timeout_fails(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.disarm_refusals = 10**6
+    with pytest.raises(m.MissionError, match="could not disarm") as err:
+        make_mission(v, clock, straight_plan([]), disarm_timeout_s=2.0).run()
+    assert err.value.result.final_state is S.FAILED
+
+
+def test_waypoint_timeout_lands(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0), speed_mps=0.5)
+    with pytest.raises(m.FlightAborted, match="not reached in time.*landed"):
+        make_mission(v, clock, straight_plan([]), leg_timeout_s=1.0, min_speed_mps=5.0,
+                     takeoff_timeout_s=100.0).run()
+    assert not v.telemetry.armed
+
+
+def test_altitude_must_be_positive(clock):
+    with pytest.raises(ValueError):
+        make_mission(FakeVehicle(clock), clock, straight_plan([]), altitude_m=0.0)

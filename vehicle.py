@@ -236,12 +236,17 @@ def is_autopilot_heartbeat(msg) -> bool:
 
 
 def telemetry_from_heartbeat(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Armed flag, mode name (pymavlink's tables), autopilot kind and the receive time."""
+    """Armed flag, mode name (pymavlink's tables; PX4's for generic autopilots), autopilot kind, receive time."""
+    autopilot = autopilot_from_heartbeat(msg)
+    if autopilot is Autopilot.GENERIC and msg.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+        mode = mavutil.interpret_px4_mode(msg.base_mode, msg.custom_mode)  # flown with PX4 conventions
+    else:
+        mode = mavutil.mode_string_v10(msg)
     return dataclasses.replace(
         t,
-        autopilot=autopilot_from_heartbeat(msg),
+        autopilot=autopilot,
         armed=bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED),
-        mode=mavutil.mode_string_v10(msg),
+        mode=mode,
         system_status=msg.system_status,
         last_heartbeat_s=now_s,
     )
@@ -731,8 +736,10 @@ class MavlinkVehicle:
         self._send_setpoint(self._setpoint)
 
     def land(self) -> None:
-        """Land where we are: PX4 MAV_CMD_NAV_LAND (falls back to AUTO.LAND mode), ArduPilot LAND mode."""
-        self._streaming = False
+        """Land where we are: PX4 MAV_CMD_NAV_LAND (falls back to AUTO.LAND mode), ArduPilot LAND mode.
+
+        Setpoints keep streaming until the autopilot accepts, so a slow answer cannot drop PX4 out of OFFBOARD.
+        """
         if self.autopilot is Autopilot.ARDUPILOT:
             self.set_mode("LAND")
         else:
@@ -741,17 +748,22 @@ class MavlinkVehicle:
             except CommandRejected as exc:
                 log.warning("%s; switching to LAND mode instead", exc)
                 self.set_mode("LAND")
+        self._streaming = False
         log.info("landing")
 
     def hold(self) -> None:
-        """Hover in place: LOITER mode; if refused, a setpoint at the current position."""
+        """Hover in place: LOITER mode; if refused, keep streaming a setpoint at the current position."""
+        t = self.telemetry
+        if self.in_control:
+            self.goto_local(t.north_m, t.east_m, t.down_m, _heading_or_zero(t))
         try:
-            self._streaming = False
             self.set_mode("LOITER")
         except (CommandRejected, UnsupportedMode) as exc:
-            t = self.telemetry
+            if not self.in_control:
+                raise
             log.warning("%s; holding with a position setpoint instead", exc)
-            self.goto_local(t.north_m, t.east_m, t.down_m, _heading_or_zero(t))
+        else:
+            self._streaming = False
         log.info("holding position")
 
     def release_control(self) -> None:

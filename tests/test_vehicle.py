@@ -455,3 +455,26 @@ def test_tlog_holds_both_directions(fake, connect, tmp_path):
         seen.add((m.get_type(), m.get_srcSystem()))
     log.close()
     assert {("HEARTBEAT", 1), ("HEARTBEAT", 255), ("COMMAND_LONG", 255), ("COMMAND_ACK", 1)} <= seen
+
+
+def test_heartbeat_generic_autopilot_reads_px4_modes():
+    msg = roundtrip(lambda e: e.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_GENERIC,
+                                                 mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6 << 16, 0))
+    t = vh.telemetry_from_heartbeat(vh.Telemetry(), msg, 0.0)
+    assert (t.autopilot, t.mode) == (vh.Autopilot.GENERIC, "OFFBOARD")
+
+
+def test_on_ground_from_landed_state_or_altitude():
+    assert vh.Telemetry(landed_state=vh.LandedState.ON_GROUND, relative_alt_m=30.0).on_ground
+    assert not vh.Telemetry(landed_state=vh.LandedState.IN_AIR, relative_alt_m=0.0).on_ground
+    assert vh.Telemetry(relative_alt_m=0.1, v_down_mps=0.0).on_ground
+    assert not vh.Telemetry(relative_alt_m=5.0, v_down_mps=0.0).on_ground
+    assert not vh.Telemetry().on_ground  # nothing known yet
+
+
+def test_hold_uses_loiter_mode(fake, connect):
+    ap = fake()
+    v = connect(ap.port)
+    v.hold()
+    mode_cmd = [m for m in ap.of_type("COMMAND_LONG") if m.command == mavlink.MAV_CMD_DO_SET_MODE][-1]
+    assert (mode_cmd.param2, mode_cmd.param3) == (4, 3)  # AUTO.LOITER

@@ -1,0 +1,300 @@
+"""Plan a collision-free route through the city and fly it over MAVLink.
+
+Usage (see README.md)::
+
+    python motion_planning.py --plan-only --goal_lat 37.7955 --goal_lon -122.3937 --alt 5 --safety 5
+    python motion_planning.py --sim --goal_lat 37.7955 --goal_lon -122.3937 --alt 5
+    python motion_planning.py --connection tcp:127.0.0.1:5760 --goal_lat .. --goal_lon ..
+
+``main(argv) -> int`` parses the command line and calls :func:`run` with the same names; the process exit code
+is its result. Heavy modules (matplotlib, pymavlink, the graph planners) are imported only when used, so a plan
+alone starts fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from frames import Geodetic, LocalNED, geodetic_to_ned, ned_to_geodetic
+from planning_utils import (
+    BlockedCellError,
+    CityMap,
+    GridMap,
+    MapFormatError,
+    NoPathError,
+    OutsideGridError,
+    Plan,
+    PlanningError,
+    read_colliders,
+)
+
+log = logging.getLogger("motion_planning")
+
+DEFAULT_MAP = Path(__file__).resolve().with_name("colliders.csv")
+PLANNERS = ("grid", "medial-axis", "voronoi", "prm", "grid3d", "any-angle")
+
+EXIT_OK = 0
+EXIT_FAILED = 1  # the mission started but did not complete
+EXIT_BAD_INPUT = 2  # bad map, bad start/goal, no autopilot, refused command before takeoff
+EXIT_NO_PATH = 3
+EXIT_INTERRUPTED = 130
+
+
+class UserError(Exception):
+    """A problem the user can fix; the CLI prints it on one line and exits with ``exit_code``."""
+
+    def __init__(self, message: str, exit_code: int = EXIT_BAD_INPUT):
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Planning
+
+
+@dataclass(frozen=True)
+class Setting:
+    """The map and the grid for the flight altitude, with the home point the map frame is relative to."""
+
+    city: CityMap
+    home: Geodetic
+    grid_map: GridMap
+    altitude_m: float
+    safety_m: float
+
+    def to_geodetic(self, north_m: float, east_m: float) -> Geodetic:
+        return ned_to_geodetic(LocalNED(north_m, east_m, 0.0), self.home)
+
+    def describe(self, north_m: float, east_m: float) -> str:
+        """``lat, lon (N .. m, E .. m)`` for messages."""
+        p = self.to_geodetic(north_m, east_m)
+        return f"{p.lat_deg:.6f}, {p.lon_deg:.6f} (N {north_m:.1f} m, E {east_m:.1f} m)"
+
+
+def load_setting(map_path: str | Path, altitude_m: float, safety_m: float) -> Setting:
+    """Read the map and build the configuration-space grid; map problems become :class:`UserError`."""
+    if altitude_m <= 0:
+        raise UserError(f"--alt must be above the ground, got {altitude_m} m")
+    if safety_m < 0:
+        raise UserError(f"--safety must be >= 0, got {safety_m} m")
+    try:
+        city = read_colliders(map_path)
+    except MapFormatError as exc:
+        raise UserError(f"bad map file {exc}") from None
+    except OSError as exc:
+        raise UserError(f"cannot read map file {map_path}: {exc.strerror or exc}") from None
+    home = Geodetic(city.lat0_deg, city.lon0_deg, 0.0)
+    return Setting(city, home, GridMap.build(city.obstacles, altitude_m, safety_m), altitude_m, safety_m)
+
+
+def check_endpoint(setting: Setting, which: str, north_m: float, east_m: float, *, allow_margin: bool = False):
+    """Raise :class:`UserError` if a start or goal point is off the map or inside an obstacle or its margin.
+
+    With ``allow_margin`` a point inside the safety margin (but outside every obstacle) passes: the planner then
+    starts from the nearest free cell.
+    """
+    grid_map = setting.grid_map
+    n, m = grid_map.grid.shape
+    i, j = grid_map.cell_of(north_m, east_m)
+    where = setting.describe(north_m, east_m)
+    if not (0 <= i < n and 0 <= j < m):
+        raise UserError(
+            f"{which} {where} is off the map, which spans N {grid_map.north_offset}..{grid_map.north_offset + n} m, "
+            f"E {grid_map.east_offset}..{grid_map.east_offset + m} m from home"
+        )
+    if not grid_map.grid[i, j]:
+        return
+    inside = grid_map.inside_obstacle(north_m, east_m)
+    if allow_margin and not inside:
+        return
+    try:
+        grid_map.planner.check_cell(which, (i, j))
+    except BlockedCellError as exc:
+        what = "inside a building" if inside else f"within the {setting.safety_m:g} m safety margin of a building"
+        hint = "no free point on the map"
+        if exc.nearest_free is not None:
+            hint = "nearest free point: " + setting.describe(*grid_map.centre_of(exc.nearest_free))
+        raise UserError(f"{which} {where} is {what} at {setting.altitude_m:g} m altitude; {hint}") from None
+
+
+def make_plan(
+    setting: Setting,
+    start_ne: Sequence[float],
+    goal_ne: Sequence[float],
+    planner: str = "grid",
+    *,
+    goal_alt_m: float | None = None,
+    seed: int = 0,
+    snap_start: bool = False,
+) -> Plan:
+    """Plan with the named planner; bad endpoints and "no path" become :class:`UserError` (exit 2 or 3)."""
+    check_endpoint(setting, "start", *start_ne, allow_margin=snap_start)
+    if goal_alt_m is None:
+        check_endpoint(setting, "goal", *goal_ne)
+    try:
+        if planner == "grid":
+            return setting.grid_map.plan(start_ne, goal_ne, snap_start=snap_start)
+        import graph_planning  # the other planners pull in networkx, scipy and scikit-image
+
+        return graph_planning.plan(
+            planner, setting.city.obstacles, start_ne, goal_ne, setting.altitude_m, setting.safety_m,
+            goal_alt_m=goal_alt_m, seed=seed, snap_start=snap_start,
+        )
+    except NoPathError as exc:
+        raise UserError(
+            f"no path from {setting.describe(*start_ne)} to {setting.describe(*goal_ne)} at "
+            f"{setting.altitude_m:g} m with a {setting.safety_m:g} m safety margin ({exc})",
+            EXIT_NO_PATH,
+        ) from None
+    except (OutsideGridError, BlockedCellError, PlanningError) as exc:
+        raise UserError(f"cannot plan: {exc}") from None
+
+
+def plan_summary(plan: Plan) -> str:
+    s = plan.stats()
+    return (
+        f"{plan.planner} plan: cost {s['cost_m']:.1f} m, length {s['length_m']:.1f} m, "
+        f"{s['expanded']} nodes expanded, search {s['search_ms']:.1f} ms, "
+        f"waypoints {s['waypoints_before_pruning']} -> {s['waypoints_after_pruning']} after pruning"
+    )
+
+
+def plan_document(setting: Setting, plan: Plan, start_ne, goal_ne) -> dict:
+    """The ``--json`` output: waypoints, stats, and where things are."""
+
+    def point(north_m, east_m):
+        p = setting.to_geodetic(north_m, east_m)
+        return {"north_m": float(north_m), "east_m": float(east_m), "lat_deg": p.lat_deg, "lon_deg": p.lon_deg}
+
+    return {
+        "waypoints": np.round(plan.waypoints, 4).tolist(),
+        "waypoint_fields": ["north_m", "east_m", "altitude_m", "heading_rad"],
+        "stats": plan.stats(),
+        "home": {"lat_deg": setting.home.lat_deg, "lon_deg": setting.home.lon_deg},
+        "start": point(*start_ne),
+        "goal": point(*goal_ne),
+        "map": setting.city.path,
+        "altitude_m": setting.altitude_m,
+        "safety_m": setting.safety_m,
+    }
+
+
+def print_plan(plan: Plan, out=sys.stdout) -> None:
+    print("waypoints: north_m east_m altitude_m heading_rad", file=out)
+    for k, (north, east, alt, heading) in enumerate(plan.waypoints):
+        print(f"{k:4d} {north:9.2f} {east:9.2f} {alt:7.2f} {heading:8.4f}", file=out)
+    print(plan_summary(plan), file=out)
+
+
+def save_plot(path, setting: Setting, plan: Plan, track_ne=None) -> None:
+    import plotting  # matplotlib only when a picture is asked for
+
+    plotting.save_plan_figure(
+        path, setting.city.obstacles, plan, altitude_m=setting.altitude_m, safety_m=setting.safety_m,
+        track_ne=track_ne,
+        grid=(setting.grid_map.grid, setting.grid_map.north_offset, setting.grid_map.east_offset),
+    )
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The command line
+
+
+def run(
+    *,
+    goal_lat: float | None = None,
+    goal_lon: float | None = None,
+    alt: float = 5.0,
+    safety: float = 5.0,
+    start_lat: float | None = None,
+    start_lon: float | None = None,
+    goal_alt: float | None = None,
+    map_path: str | Path = DEFAULT_MAP,
+    planner: str = "grid",
+    seed: int = 0,
+    plot: str | None = None,
+    json_output: bool = False,
+    plan_only: bool = False,
+    out=None,
+) -> int:
+    """Plan (and, unless ``plan_only``, fly) one mission; returns the process exit code.
+
+    Raises :class:`UserError` for problems the user can fix; :func:`main` prints those.
+    """
+    out = out or sys.stdout
+    if goal_lat is None or goal_lon is None:
+        raise UserError("give the goal as --goal_lat DEG --goal_lon DEG")
+    if (start_lat is None) != (start_lon is None):
+        raise UserError("give both --start_lat and --start_lon, or neither (start at the map's home)")
+    setting = load_setting(map_path, alt, safety)
+    goal_ne = geodetic_to_ned(Geodetic(goal_lat, goal_lon, 0.0), setting.home)[:2]
+    if not plan_only:
+        raise UserError("flying is not wired into this build yet; use --plan-only")
+    start_ne = (0.0, 0.0)
+    if start_lat is not None:
+        start_ne = geodetic_to_ned(Geodetic(start_lat, start_lon, 0.0), setting.home)[:2]
+    plan = make_plan(setting, start_ne, goal_ne, planner, goal_alt_m=goal_alt, seed=seed)
+    if json_output:
+        json.dump(plan_document(setting, plan, start_ne, goal_ne), out)
+        out.write("\n")
+    else:
+        print_plan(plan, out)
+    if plot:
+        save_plot(plot, setting, plan)
+        if not json_output:
+            print(f"plot written to {plot}", file=out)
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="motion_planning.py",
+        description="Plan a collision-free route through the city map and fly it over MAVLink.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    where = parser.add_argument_group("where to go")
+    where.add_argument("--goal_lat", type=float, help="goal latitude in degrees (required)")
+    where.add_argument("--goal_lon", type=float, help="goal longitude in degrees (required)")
+    where.add_argument("--alt", type=float, default=5.0, help="flight altitude in metres above the ground")
+    where.add_argument("--safety", type=float, default=5.0, help="minimum distance to buildings in metres")
+    where.add_argument("--start_lat", type=float, help="start latitude (plan-only; default: the map's home)")
+    where.add_argument("--start_lon", type=float, help="start longitude (plan-only; default: the map's home)")
+    where.add_argument("--goal_alt", type=float, help="goal altitude in metres, e.g. a rooftop (grid3d planner)")
+    how = parser.add_argument_group("how to plan")
+    how.add_argument("--map", dest="map_path", default=str(DEFAULT_MAP), help="colliders.csv map file")
+    how.add_argument("--planner", choices=PLANNERS, default="grid", help="planning algorithm")
+    how.add_argument("--seed", type=int, default=0, help="random seed for sampling planners")
+    output = parser.add_argument_group("output")
+    output.add_argument("--plan-only", dest="plan_only", action="store_true", help="plan and print; no drone")
+    output.add_argument("--json", dest="json_output", action="store_true", help="print the plan as one JSON object")
+    output.add_argument("--plot", metavar="FILE.png", help="draw the map, plan (and flown track) to a PNG")
+    output.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = vars(build_parser().parse_args(argv))
+    logging.basicConfig(
+        level=logging.INFO if args.pop("verbose") else logging.WARNING,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        return run(**args)
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""The plan-only command line, run through main(argv) exactly as a user runs it (no drone)."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from frames import Geodetic, LocalNED, ned_to_geodetic
+from motion_planning import DEFAULT_MAP, EXIT_BAD_INPUT, EXIT_NO_PATH, main
+from planning_utils import create_grid, line_of_sight, read_colliders
+
+ROOT = Path(__file__).resolve().parents[1]
+HOME = Geodetic(37.792480, -122.397450, 0.0)
+
+
+def latlon(north_m: float, east_m: float) -> list[str]:
+    p = ned_to_geodetic(LocalNED(north_m, east_m, 0.0), HOME)
+    return ["--goal_lat", f"{p.lat_deg:.8f}", "--goal_lon", f"{p.lon_deg:.8f}"]
+
+
+@pytest.fixture
+def walled_map(tmp_path) -> Path:
+    """An 80 m map: a 20 m tall wall north of home from E -30 to 30, posts marking the corners."""
+    path = tmp_path / "walled.csv"
+    path.write_text(
+        "lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+        "20,0,10,1,30,10\n-40,-40,1,1,1,1\n40,40,1,1,1,1\n"
+    )
+    return path
+
+
+def test_json_plan_goes_round_the_wall_and_every_leg_is_free(walled_map, capsys):
+    code = main(["--plan-only", "--json", "--map", str(walled_map), "--alt", "5", "--safety", "2", *latlon(35.3, 0.3)])
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)
+    waypoints = np.array(doc["waypoints"])
+    assert waypoints.shape[1] == 4
+    assert np.allclose(waypoints[0, :2], (0.5, 0.5)) and np.allclose(waypoints[-1, :2], (35.5, 0.5), atol=0.01)
+    assert (waypoints[:, 2] == 5).all()
+    assert np.abs(waypoints[:, 1]).max() >= 32  # round an end of the wall (30 m + 2 m margin)
+    grid, n0, e0 = create_grid(read_colliders(walled_map).obstacles, 5, 2)
+    cells = np.floor(waypoints[:, :2] - (n0, e0)).astype(int)
+    assert all(line_of_sight(grid, a, b) for a, b in zip(cells[:-1], cells[1:]))
+    for k in range(1, len(waypoints)):  # headings point along the arriving leg
+        leg = waypoints[k, :2] - waypoints[k - 1, :2]
+        assert math.isclose(waypoints[k, 3], math.atan2(leg[1], leg[0]), abs_tol=1e-3)
+    stats = doc["stats"]
+    assert stats["waypoints_after_pruning"] == len(waypoints) < stats["waypoints_before_pruning"]
+    assert stats["length_m"] <= stats["cost_m"] + 1e-6
+    assert doc["goal"]["north_m"] == pytest.approx(35.3, abs=0.01)
+
+
+def test_text_output_lists_waypoints_and_one_stats_line(walled_map, capsys):
+    assert main(["--plan-only", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0].startswith("waypoints:")
+    assert lines[-1].startswith("grid plan: cost ") and "nodes expanded" in lines[-1] and "->" in lines[-1]
+
+
+def test_start_lat_lon_moves_the_start(walled_map, capsys):
+    start = ned_to_geodetic(LocalNED(-30.3, 25.3, 0), HOME)
+    code = main([
+        "--plan-only", "--json", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3),
+        "--start_lat", str(start.lat_deg), "--start_lon", str(start.lon_deg),
+    ])
+    assert code == 0
+    first = json.loads(capsys.readouterr().out)["waypoints"][0]
+    assert first[:2] == pytest.approx([-30.5, 25.5], abs=0.01)
+
+
+def test_plot_writes_a_png(walled_map, tmp_path, capsys):
+    out = tmp_path / "plan.png"
+    assert main(["--plan-only", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3), "--plot", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_goal_inside_a_building_names_the_nearest_free_point(walled_map, capsys):
+    code = main(["--plan-only", "--map", str(walled_map), "--safety", "2", *latlon(20.3, 10.3)])
+    err = capsys.readouterr().err.strip()
+    assert code == EXIT_BAD_INPUT
+    assert len(err.splitlines()) == 1
+    assert "inside a building" in err and "nearest free point: " in err and "N 23.5 m, E 10.5 m" in err
+
+
+def test_goal_in_the_safety_margin_says_so(walled_map, capsys):
+    assert main(["--plan-only", "--map", str(walled_map), "--safety", "2", *latlon(22.5, 0.3)]) == EXIT_BAD_INPUT
+    assert "within the 2 m safety margin" in capsys.readouterr().err
+
+
+def test_goal_off_the_map_is_refused(walled_map, capsys):
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(500, 0)]) == EXIT_BAD_INPUT
+    assert "is off the map" in capsys.readouterr().err
+
+
+def test_no_path_exits_3(tmp_path, capsys):
+    boxed = tmp_path / "boxed.csv"  # a closed courtyard around the goal
+    boxed.write_text(
+        "lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+        "30,0,20,1,15,20\n0,0,20,1,15,20\n15,-14,20,15,1,20\n15,14,20,15,1,20\n-40,-40,1,1,1,1\n40,40,1,1,1,1\n"
+    )
+    code = main(["--plan-only", "--map", str(boxed), "--safety", "1", *latlon(15.3, 0.3), "--start_lat",
+                 str(ned_to_geodetic(LocalNED(-20.3, 0.3, 0), HOME).lat_deg), "--start_lon", str(HOME.lon_deg + 1e-6)])
+    assert code == EXIT_NO_PATH
+    assert "no path from" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "content, fragment",
+    [("lat0 37.7, lon0 -122.3\nposX,posY\n", ":2: expected header"), ("", ":1: empty file")],
+)
+def test_malformed_map_is_one_line_and_exit_2(tmp_path, capsys, content, fragment):
+    bad = tmp_path / "bad.csv"
+    bad.write_text(content)
+    assert main(["--plan-only", "--map", str(bad), *latlon(1, 1)]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and fragment in err
+
+
+def test_missing_map_file_is_a_clear_error(tmp_path, capsys):
+    assert main(["--plan-only", "--map", str(tmp_path / "nope.csv"), *latlon(1, 1)]) == EXIT_BAD_INPUT
+    assert "cannot read map file" in capsys.readouterr().err
+
+
+def test_missing_goal_is_a_clear_error(capsys):
+    assert main(["--plan-only"]) == EXIT_BAD_INPUT
+    assert "--goal_lat" in capsys.readouterr().err
+
+
+def test_help_shows_defaults():
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "motion_planning.py"), "--help"], capture_output=True, text=True, check=True
+    )
+    assert "(default: 5.0)" in result.stdout and "--plan-only" in result.stdout
+
+
+def test_default_map_is_the_project_map_and_plans_from_home(capsys):
+    assert DEFAULT_MAP == ROOT / "colliders.csv"
+    assert main(["--plan-only", "--json", *latlon(-300.3, 350.3)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["start"]["north_m"] == 0 and doc["start"]["east_m"] == 0
+    assert doc["waypoints"][-1][:2] == pytest.approx([-300.5, 350.5], abs=0.01)

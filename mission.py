@@ -319,6 +319,7 @@ class Mission:
         self._offset = LocalNED(0.0, 0.0, 0.0)
         self._track: list[tuple[float, float, float, float]] = []
         self._takeoff_s = math.nan
+        self._land_commanded = False
 
     # ------------------------------------------------------------------------------------------ plumbing
     def _fire(self, event: MissionEvent) -> MissionState:
@@ -486,13 +487,13 @@ class Mission:
         try:
             self._takeoff(float(waypoints[0, 2]))
             self._follow(waypoints)
+            self._land()
         except MissionError:
             raise
         except (_Abort, *self.vehicle_errors) as exc:
             log.error("flight failed in state %s: %s", self.state.name, exc)
             outcome = self._make_safe(str(exc))
             raise FlightAborted(f"{exc}; {outcome}") from exc
-        self._land()
         self.result.completed = True
 
     def _takeoff(self, altitude_m: float) -> None:
@@ -549,6 +550,10 @@ class Mission:
     def _land(self) -> None:
         """Land here, wait for touchdown, disarm, release control (LANDING -> DISARMING -> MANUAL)."""
         self.vehicle.land()
+        self._land_commanded = True
+        self._await_touchdown()
+
+    def _await_touchdown(self) -> None:
         deadline = self.clock() + self.landing_timeout_s
         while not (self.vehicle.telemetry.on_ground or not self.vehicle.telemetry.armed):
             if self.clock() > deadline:
@@ -560,48 +565,50 @@ class Mission:
         if len(r.waypoints):
             p = self._map_position()
             r.landing_error_m = math.hypot(p.north_m - r.waypoints[-1, 0], p.east_m - r.waypoints[-1, 1])
-        log.info("landed; %s", r.summary() if self._track else "")
+        log.info("landed; %s", r.summary())
         self._fire(MissionEvent.LANDED)
         self._disarm()
         self.vehicle.release_control()
         self._fire(MissionEvent.DISARMED)
 
     def _make_safe(self, why: str) -> str:
-        """After a failure: land if flying (hold if landing fails), disarm if armed on the ground.
+        """After a failure or Ctrl-C: land if flying (hold if landing fails), disarm if armed on the ground.
 
-        Returns what was done, for the error message. Never raises a vehicle error itself.
+        Returns what was done, for the error message. Raises only LinkLostInFlight.
         """
         if self.state in (MissionState.MANUAL, MissionState.FAILED):
             return "the vehicle was not armed by us"
-        if self.state in (MissionState.ARMING, MissionState.PLANNING):
-            self._fire(MissionEvent.ABORT)
+        if self.state in (MissionState.ARMING, MissionState.PLANNING, MissionState.DISARMING):
+            if self.state is not MissionState.DISARMING:
+                self._fire(MissionEvent.ABORT)
             try:
                 self._disarm_on_ground()
             except (MissionError, *self.vehicle_errors) as exc:
                 return f"could not disarm: {exc}"
-            return "disarmed on the ground, never took off"
-        if self.state is MissionState.DISARMING:
-            try:
-                self._disarm_on_ground()
-            except (MissionError, *self.vehicle_errors) as exc:
-                return f"could not disarm: {exc}"
-            return "landed and disarmed"
+            return "disarmed on the ground" if math.isnan(self._takeoff_s) else "landed and disarmed"
         if self.state is not MissionState.LANDING:
             self._fire(MissionEvent.ABORT)
         log.warning("%s: landing where we are", why)
-        try:
-            self._land()
-        except LinkLostInFlight as exc:
-            return str(exc)
-        except (_Abort, MissionError, *self.vehicle_errors) as exc:
-            log.error("could not land (%s); holding", exc)
-            if self.state is MissionState.LANDING:
-                self._fire(MissionEvent.LAND_FAILED)
+        if not self._land_commanded:
             try:
-                self.vehicle.hold()
-            except self.vehicle_errors as hold_exc:
-                return f"could not land ({exc}) nor hold ({hold_exc}); the autopilot's failsafe owns the vehicle"
-            return f"could not land ({exc}); holding position"
+                self.vehicle.land()
+                self._land_commanded = True
+            except self.vehicle_errors as exc:
+                log.error("could not land (%s); holding", exc)
+                self._fire(MissionEvent.LAND_FAILED)
+                try:
+                    self.vehicle.hold()
+                except self.vehicle_errors as hold_exc:
+                    return (f"could not land ({exc}) nor hold ({hold_exc}); "
+                            "the autopilot's failsafe owns the vehicle")
+                return f"could not land ({exc}); holding position"
+        try:
+            self._await_touchdown()
+        except _Abort as exc:
+            self._fire(MissionEvent.LAND_FAILED)
+            return f"landing commanded but not confirmed ({exc}); the autopilot is landing"
+        except (MissionError, *self.vehicle_errors) as exc:
+            return f"landed, then {exc}"
         p = self._map_position()
         return f"landed at ({p.north_m:.1f} N, {p.east_m:.1f} E) and disarmed"
 

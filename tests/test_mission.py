@@ -427,3 +427,27 @@ def test_waypoint_timeout_lands(clock):
 def test_altitude_must_be_positive(clock):
     with pytest.raises(ValueError):
         make_mission(FakeVehicle(clock), clock, straight_plan([]), altitude_m=0.0)
+
+
+def test_touchdown_not_confirmed_is_reported(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.land = lambda: v.calls.append("land")  # accepted, but the vehicle never descends
+    with pytest.raises(m.FlightAborted, match="landing commanded but not confirmed") as err:
+        make_mission(v, clock, straight_plan([]), landing_timeout_s=5.0).run()
+    assert err.value.result.final_state is S.FAILED
+    assert "hold" not in v.calls  # the autopilot keeps landing; we do not override it
+
+
+def test_ctrl_c_while_landing_waits_for_touchdown(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    mission = make_mission(v, clock, straight_plan([]))
+    real_land = v.land
+
+    def land_then_interrupt():
+        real_land()
+        clock.at(clock.now + 1.0, lambda: (_ for _ in ()).throw(KeyboardInterrupt))
+
+    v.land = land_then_interrupt
+    with pytest.raises(KeyboardInterrupt):
+        mission.run()
+    assert v.telemetry.on_ground and not v.telemetry.armed and mission.state is S.MANUAL

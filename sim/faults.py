@@ -1,0 +1,129 @@
+"""Fault injection for reliability tests. Everything is off by default.
+
+Link faults act on whole MAVLink packets, per TCP client, in **wall-clock** time (they exist to
+exercise clients' wall-clock timeouts):
+
+* ``packet_loss_pct``: each packet, in each direction, is dropped with this probability (seeded).
+* ``latency_ms``: each packet is delayed by this much in each direction (round trip +2x).
+* ``outage_start_s`` / ``outage_duration_s``: from ``start`` wall seconds after the sim starts, for
+  ``duration`` seconds, every packet in both directions is dropped (the TCP socket stays open).
+
+Command faults:
+
+* ``deny_arm_count``: the first N arm requests are answered TEMPORARILY_REJECTED.
+* ``deny_commands``: named MAV_CMDs (``MAV_CMD_NAV_TAKEOFF``, ``NAV_TAKEOFF`` or ``22``) are answered
+  DENIED.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """Fault settings (see module docstring for semantics and units)."""
+
+    packet_loss_pct: float = 0.0
+    latency_ms: float = 0.0
+    outage_start_s: float | None = None
+    outage_duration_s: float = 0.0
+    deny_arm_count: int = 0
+    deny_commands: tuple[str, ...] = ()
+
+    def active(self) -> list[str]:
+        """Human-readable list of the faults that are on."""
+        out = []
+        if self.packet_loss_pct > 0:
+            out.append(f"packet loss {self.packet_loss_pct:g}%")
+        if self.latency_ms > 0:
+            out.append(f"latency {self.latency_ms:g} ms")
+        if self.outage_start_s is not None and self.outage_duration_s > 0:
+            out.append(f"outage at {self.outage_start_s:g} s for {self.outage_duration_s:g} s")
+        if self.deny_arm_count > 0:
+            out.append(f"deny first {self.deny_arm_count} arm(s)")
+        if self.deny_commands:
+            out.append("deny " + ",".join(self.deny_commands))
+        return out
+
+
+def command_id(name: str) -> int:
+    """MAV_CMD number from ``"MAV_CMD_NAV_TAKEOFF"``, ``"NAV_TAKEOFF"`` or ``"22"``.
+
+    Raises
+    ------
+    ValueError
+        If the name is not a MAV_CMD of the common dialect.
+
+    >>> command_id("NAV_TAKEOFF"), command_id("mav_cmd_nav_land"), command_id("400")
+    (22, 21, 400)
+    """
+    text = name.strip()
+    if text.isdigit():
+        return int(text)
+    key = text.upper()
+    if not key.startswith("MAV_CMD_"):
+        key = "MAV_CMD_" + key
+    for number, entry in mavlink.enums["MAV_CMD"].items():
+        if entry.name == key:
+            return number
+    raise ValueError(f"unknown MAVLink command {name!r}")
+
+
+def command_name(number: int) -> str:
+    """``MAV_CMD_*`` name of a command number, or ``"MAV_CMD_<n>"`` if unknown."""
+    entry = mavlink.enums["MAV_CMD"].get(int(number))
+    return entry.name if entry is not None else f"MAV_CMD_{int(number)}"
+
+
+class LinkFaults:
+    """Per-link packet faults; one instance per TCP client."""
+
+    def __init__(self, config: FaultConfig, seed: int, link_id: int) -> None:
+        self.config = config
+        self._rng_in = random.Random(f"{seed}/{link_id}/in")
+        self._rng_out = random.Random(f"{seed}/{link_id}/out")
+        self.dropped_in = 0
+        self.dropped_out = 0
+
+    @property
+    def delay_s(self) -> float:
+        return max(0.0, self.config.latency_ms) / 1000.0
+
+    def in_outage(self, elapsed_wall_s: float) -> bool:
+        start = self.config.outage_start_s
+        return start is not None and start <= elapsed_wall_s < start + self.config.outage_duration_s
+
+    def drop_in(self, elapsed_wall_s: float) -> bool:
+        """Whether the next incoming packet is lost."""
+        lost = self.in_outage(elapsed_wall_s) or self._rng_in.random() * 100.0 < self.config.packet_loss_pct
+        self.dropped_in += lost
+        return lost
+
+    def drop_out(self, elapsed_wall_s: float) -> bool:
+        """Whether the next outgoing packet is lost."""
+        lost = self.in_outage(elapsed_wall_s) or self._rng_out.random() * 100.0 < self.config.packet_loss_pct
+        self.dropped_out += lost
+        return lost
+
+
+class CommandFaults:
+    """Arm and command denials, shared by all links."""
+
+    def __init__(self, config: FaultConfig) -> None:
+        self.config = config
+        self._deny_ids = {command_id(n) for n in config.deny_commands}
+        self.arms_denied = 0
+
+    def deny_command(self, command: int) -> bool:
+        return int(command) in self._deny_ids
+
+    def deny_arm(self) -> bool:
+        """Call once per arm request; True while the first N are being denied."""
+        if self.arms_denied < self.config.deny_arm_count:
+            self.arms_denied += 1
+            return True
+        return False

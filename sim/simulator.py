@@ -1,0 +1,256 @@
+"""In-process simulator: one thread runs transport, autopilot and physics in lock-step.
+
+Example
+-------
+>>> from sim import SimConfig, Simulator                      # doctest: +SKIP
+>>> with Simulator(SimConfig(map_path="colliders.csv", port=0, speedup=10)) as sim:  # doctest: +SKIP
+...     print(sim.port)
+...     report = sim.report()
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+from .autopilot import Autopilot
+from .config import SimConfig
+from .report import FlightRecorder, write_report
+from .server import TcpLink, TcpServer, TlogLink
+from . import telemetry as tm
+from .telemetry import default_intervals
+from .world import CityMap
+
+log = logging.getLogger(__name__)
+M_HOME, M_GPI, M_LPN, M_HB = 242, 33, 32, 0
+
+#: At most this much wall time (s) of physics is caught up per loop turn; beyond it the sim slows.
+MAX_CATCHUP_WALL_S = 0.1
+
+
+class SimulatorError(RuntimeError):
+    """The simulation thread failed or did not start/stop in time."""
+
+
+class Simulator:
+    """A mock autopilot serving MAVLink over TCP.
+
+    Parameters
+    ----------
+    config : SimConfig
+    on_event : callable, optional
+        ``on_event(line)`` for every status line (called on the simulation thread).
+    city : CityMap, optional
+        Preloaded map (else read from ``config.map_path``).
+    """
+
+    def __init__(self, config: SimConfig, on_event: Callable[[str], None] | None = None,
+                 city: CityMap | None = None) -> None:
+        self.config = config
+        self.on_event = on_event
+        self.city = city if city is not None else CityMap.from_csv(config.resolved_map_path())
+        self.recorder = FlightRecorder(self.city, config.radius_m)
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._server: TcpServer | None = None
+        self._tlog: TlogLink | None = None
+        self._t0 = time.monotonic()
+        self.error: BaseException | None = None
+        self.behind_s = 0.0
+        self.autopilot = Autopilot(config, self.city, self.recorder, self._send, self._emit)
+        ap = self.autopilot
+        self.recorder.start = self.recorder.place(*ap.position_neu)
+        self.recorder.home = self.recorder.place(*ap.home_neu)
+        self._intervals = default_intervals(config.speedup)
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def port(self) -> int:
+        """The bound TCP port (useful with ``port=0``)."""
+        if self._server is None:
+            raise SimulatorError("simulator not started")
+        return self._server.port
+
+    @property
+    def host(self) -> str:
+        return self.config.host
+
+    def start(self) -> Simulator:
+        """Bind the socket and start the simulation thread."""
+        if self._thread is not None:
+            raise SimulatorError("simulator already started")
+        self._server = TcpServer(self.config.host, self.config.port, self.config.faults, self.config.seed)
+        if self.config.tlog_path is not None:
+            self._tlog = TlogLink(self.config.tlog_path)
+            self._tlog.intervals = dict(default_intervals(1.0))
+        self._t0 = time.monotonic()
+        self._emit("listening", f"MAVLink on tcp:{self._server.host}:{self._server.port} "
+                                f"({self.config.autopilot}{', strict' if self.config.strict else ''}, "
+                                f"speedup {self.config.speedup:g}, {len(self.city)} boxes)")
+        for fault in self.config.faults.active():
+            self._emit("fault", fault)
+        self._thread = threading.Thread(target=self._run, name="sim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 5.0) -> dict:
+        """Stop the thread, close sockets and files, write the report if configured; return it."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                raise SimulatorError(f"simulation thread did not stop within {timeout_s} s")
+        with self._lock:
+            if self._server is not None:
+                self._server.close()
+            if self._tlog is not None:
+                self._tlog.close()
+            report = self.report()
+            if self.config.report_path is not None:
+                write_report(self.config.report_path, report)
+                self._emit("report", f"report written to {self.config.report_path}")
+        return report
+
+    def __enter__(self) -> Simulator:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # ------------------------------------------------------------------ observation
+    def report(self) -> dict:
+        """The flight report (see ``sim/__init__.py`` for the keys)."""
+        with self._lock:
+            ap = self.autopilot
+            return self.recorder.to_dict(ap.truth(), self.config.as_dict(), ap.sim_time_s,
+                                         time.monotonic() - self._t0)
+
+    def truth(self) -> dict:
+        """The vehicle's true state right now (map frame, see :meth:`Autopilot.truth`)."""
+        with self._lock:
+            return self.autopilot.truth()
+
+    def wait_until(self, predicate: Callable[[dict], bool], timeout_s: float, poll_s: float = 0.02) -> dict:
+        """Poll :meth:`truth` until ``predicate(truth)``; raise ``TimeoutError`` after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            state = self.truth()
+            if predicate(state):
+                return state
+            if self.error is not None:
+                raise SimulatorError("simulation thread failed") from self.error
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"condition not met within {timeout_s} s; last state {state}")
+            time.sleep(poll_s)
+
+    def clients(self) -> int:
+        with self._lock:
+            return 0 if self._server is None else len(self._server.links)
+
+    # ------------------------------------------------------------------ internals
+    def _emit(self, kind: str, text: str) -> None:
+        sim_t = self.autopilot.sim_time_s if hasattr(self, "autopilot") else 0.0
+        self.recorder.add_event(sim_t, kind, text)
+        line = f"[sim {sim_t:8.2f}s] {kind:<9} {text}"
+        log.info(line)
+        if self.on_event is not None:
+            self.on_event(line)
+
+    def _elapsed(self, wall_s: float) -> float:
+        return wall_s - self._t0
+
+    def _send(self, link, msg) -> None:
+        wall = time.monotonic()
+        elapsed = self._elapsed(wall)
+        if link is None:
+            for each in self._server.links:
+                each.queue(msg, wall, elapsed)
+        else:
+            link.queue(msg, wall, elapsed)
+        if self._tlog is not None:
+            self._tlog.queue(msg, wall, elapsed)
+
+    def _on_connect(self, link: TcpLink, wall_s: float) -> None:
+        link.intervals = dict(self._intervals)
+        ap = self.autopilot
+        self._emit("client", f"link {link.link_id} connected from {link.peer}")
+        snap = ap.snapshot()
+        for msg_id in (M_HOME, M_GPI, M_LPN, M_HB):  # position and home before the first heartbeat
+            link.queue(tm.BUILDERS[msg_id](snap), wall_s, self._elapsed(wall_s))
+        for msg_id, interval in link.intervals.items():
+            if interval is not None:
+                link.next_due[msg_id] = wall_s + interval
+
+    def _stream(self, links, wall_s: float) -> None:
+        cache: dict = {}
+        snap = None
+        elapsed = self._elapsed(wall_s)
+        for link in links:
+            for msg_id, interval in link.intervals.items():
+                if interval is None:
+                    continue
+                due = link.next_due.get(msg_id, wall_s)
+                if wall_s < due:
+                    continue
+                if msg_id not in cache:
+                    snap = snap or self.autopilot.snapshot()
+                    cache[msg_id] = tm.BUILDERS[msg_id](snap)
+                link.queue(cache[msg_id], wall_s, elapsed)
+                link.next_due[msg_id] = due + interval if due + interval > wall_s else wall_s + interval
+
+    def _run(self) -> None:
+        try:
+            self._loop()
+        except BaseException as exc:  # reported to callers through self.error
+            self.error = exc
+            log.exception("simulation thread failed")
+            self._emit("error", f"simulation thread failed: {exc!r}")
+
+    def _loop(self) -> None:
+        cfg = self.config
+        ap = self.autopilot
+        server = self._server
+        dt = cfg.physics_dt_s
+        wall_step = dt / cfg.speedup
+        sim_origin_wall = self._t0
+        timeout = 0.0
+        while not self._stop.is_set():
+            wall = time.monotonic()
+            new_links, messages, closed = server.poll(timeout, wall, self._elapsed(wall))
+            wall = time.monotonic()
+            with self._lock:
+                ap.wall_s = wall
+                for link in new_links:
+                    self._on_connect(link, wall)
+                for link, msg in messages:
+                    if self._tlog is not None:
+                        self._tlog.record_incoming(msg)
+                    ap.handle(link, msg)
+                for link in closed:
+                    self._emit("client", f"link {link.link_id} disconnected")
+                target_sim = (wall - sim_origin_wall) * cfg.speedup
+                steps = 0
+                max_steps = max(1, int(MAX_CATCHUP_WALL_S / wall_step))
+                while ap.sim_time_s + dt <= target_sim + 1e-9 and steps < max_steps:
+                    ap.step(dt)
+                    steps += 1
+                if steps == max_steps and ap.sim_time_s + dt <= target_sim:
+                    lag = (target_sim - ap.sim_time_s) / cfg.speedup
+                    sim_origin_wall += lag  # fall back rather than spiral
+                    self.behind_s += lag
+                links = list(server.links) + ([self._tlog] if self._tlog is not None else [])
+                self._stream(links, wall)
+                for link in server.links:
+                    link.flush(wall)
+            next_step_wall = sim_origin_wall + (ap.sim_time_s + dt) / cfg.speedup
+            pending = any(link.out_buf or link.delayed_out or link.delayed_in for link in server.links)
+            timeout = min(0.01, max(0.0, next_step_wall - time.monotonic()))
+            if pending:
+                timeout = min(timeout, 0.002)

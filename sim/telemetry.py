@@ -1,0 +1,270 @@
+"""Outgoing MAVLink: telemetry message builders, stream rates and the parameter table.
+
+Builders read a :class:`TelemetrySnapshot` (SI units, map frame) and return pymavlink message
+objects of the common v2 dialect; the transport packs them per link.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink
+
+SYSTEM_ID = 1
+COMPONENT_ID = 1
+
+M = mavlink  # short alias for enum names below
+
+#: Default stream intervals (wall-clock seconds) per message id; None = only on request.
+DEFAULT_INTERVALS_S: dict[int, float | None] = {
+    M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    M.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    M.MAVLINK_MSG_ID_GPS_RAW_INT: 0.5,
+    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.1,
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 0.1,
+    M.MAVLINK_MSG_ID_ATTITUDE: 0.1,
+    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 0.5,
+    M.MAVLINK_MSG_ID_HOME_POSITION: 2.0,
+    M.MAVLINK_MSG_ID_VFR_HUD: 0.5,
+    M.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+    M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: None,
+    M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: None,
+}
+#: Messages whose default rate scales with the speedup (capped at :data:`MAX_RATE_HZ`).
+FAST_STREAMS = {
+    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    M.MAVLINK_MSG_ID_ATTITUDE,
+    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+}
+MAX_RATE_HZ = 50.0
+
+SENSORS = (
+    M.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | M.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | M.MAV_SYS_STATUS_SENSOR_GPS
+    | M.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | M.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | M.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+    | M.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | M.MAV_SYS_STATUS_AHRS
+    | M.MAV_SYS_STATUS_PREARM_CHECK
+)
+
+CAPABILITIES = (
+    M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+)
+
+
+@dataclass
+class TelemetrySnapshot:
+    """Everything the builders need, in SI units.
+
+    Positions are reported values (GPS noise applied); ``local_*`` are relative to the local NED
+    origin; altitudes are metres above the map datum.
+    """
+
+    time_boot_ms: int
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    relative_alt_m: float
+    local_north_m: float
+    local_east_m: float
+    local_down_m: float
+    vel_north_m_s: float
+    vel_east_m_s: float
+    vel_down_m_s: float
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    yaw_rate_rad_s: float
+    home_lat_deg: float
+    home_lon_deg: float
+    home_alt_m: float
+    home_local_north_m: float
+    home_local_east_m: float
+    home_local_down_m: float
+    autopilot: int
+    base_mode: int
+    custom_mode: int
+    system_status: int
+    landed_state: int
+    armable: bool
+    throttle_pct: int
+
+
+def _deg7(value: float) -> int:
+    return int(round(value * 1e7))
+
+
+def _cdeg(yaw_rad: float) -> int:
+    return int(round(math.degrees(yaw_rad) % 360.0 * 100.0)) % 36000
+
+
+def heartbeat(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_heartbeat_message(
+        M.MAV_TYPE_QUADROTOR, s.autopilot, s.base_mode, s.custom_mode, s.system_status, 3
+    )
+
+
+def sys_status(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    health = SENSORS if s.armable else SENSORS & ~M.MAV_SYS_STATUS_PREARM_CHECK
+    return mavlink.MAVLink_sys_status_message(
+        SENSORS, SENSORS, health, 200, 16000, -1, 100, 0, 0, 0, 0, 0, 0
+    )
+
+
+def gps_raw_int(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    vel = math.hypot(s.vel_north_m_s, s.vel_east_m_s)
+    cog = _cdeg(math.atan2(s.vel_east_m_s, s.vel_north_m_s)) if vel > 0.1 else 65535
+    return mavlink.MAVLink_gps_raw_int_message(
+        s.time_boot_ms * 1000, M.GPS_FIX_TYPE_3D_FIX, _deg7(s.lat_deg), _deg7(s.lon_deg),
+        int(round(s.alt_m * 1000)), 80, 120, int(round(vel * 100)), cog, 14,
+    )
+
+
+def global_position_int(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_global_position_int_message(
+        s.time_boot_ms, _deg7(s.lat_deg), _deg7(s.lon_deg), int(round(s.alt_m * 1000)),
+        int(round(s.relative_alt_m * 1000)), int(round(s.vel_north_m_s * 100)),
+        int(round(s.vel_east_m_s * 100)), int(round(s.vel_down_m_s * 100)), _cdeg(s.yaw_rad),
+    )
+
+
+def local_position_ned(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_local_position_ned_message(
+        s.time_boot_ms, s.local_north_m, s.local_east_m, s.local_down_m,
+        s.vel_north_m_s, s.vel_east_m_s, s.vel_down_m_s,
+    )
+
+
+def _quaternion(roll: float, pitch: float, yaw: float) -> list[float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return [
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    ]
+
+
+def attitude(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_attitude_message(
+        s.time_boot_ms, s.roll_rad, s.pitch_rad, s.yaw_rad, 0.0, 0.0, s.yaw_rate_rad_s
+    )
+
+
+def attitude_quaternion(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    q = _quaternion(s.roll_rad, s.pitch_rad, s.yaw_rad)
+    return mavlink.MAVLink_attitude_quaternion_message(s.time_boot_ms, *q, 0.0, 0.0, s.yaw_rate_rad_s)
+
+
+def extended_sys_state(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_extended_sys_state_message(M.MAV_VTOL_STATE_MC, s.landed_state)
+
+
+def home_position(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_home_position_message(
+        _deg7(s.home_lat_deg), _deg7(s.home_lon_deg), int(round(s.home_alt_m * 1000)),
+        s.home_local_north_m, s.home_local_east_m, s.home_local_down_m,
+        [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, s.time_boot_ms * 1000,
+    )
+
+
+def vfr_hud(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    ground = math.hypot(s.vel_north_m_s, s.vel_east_m_s)
+    return mavlink.MAVLink_vfr_hud_message(
+        ground, ground, _cdeg(s.yaw_rad) // 100, s.throttle_pct, s.alt_m, -s.vel_down_m_s
+    )
+
+
+def battery_status(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    cells = [4000] * 4 + [65535] * 6
+    return mavlink.MAVLink_battery_status_message(
+        0, M.MAV_BATTERY_FUNCTION_ALL, M.MAV_BATTERY_TYPE_LIPO, 2500, cells, -1, -1, -1, 100
+    )
+
+
+def autopilot_version(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_autopilot_version_message(
+        CAPABILITIES, 0x01000000, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5349_4D00_0000_0001
+    )
+
+
+BUILDERS = {
+    M.MAVLINK_MSG_ID_HEARTBEAT: heartbeat,
+    M.MAVLINK_MSG_ID_SYS_STATUS: sys_status,
+    M.MAVLINK_MSG_ID_GPS_RAW_INT: gps_raw_int,
+    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: global_position_int,
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: local_position_ned,
+    M.MAVLINK_MSG_ID_ATTITUDE: attitude,
+    M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: attitude_quaternion,
+    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: extended_sys_state,
+    M.MAVLINK_MSG_ID_HOME_POSITION: home_position,
+    M.MAVLINK_MSG_ID_VFR_HUD: vfr_hud,
+    M.MAVLINK_MSG_ID_BATTERY_STATUS: battery_status,
+    M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
+}
+
+
+def default_intervals(speedup: float) -> dict[int, float | None]:
+    """Per-link default intervals (wall s); fast streams run ``speedup`` times faster, up to 50 Hz."""
+    out = dict(DEFAULT_INTERVALS_S)
+    for msg_id in FAST_STREAMS:
+        base = out[msg_id]
+        if base is not None:
+            out[msg_id] = max(1.0 / MAX_RATE_HZ, base / max(1.0, speedup))
+    return out
+
+
+def statustext(severity: int, text: str) -> list[mavlink.MAVLink_message]:
+    """STATUSTEXT message(s); texts longer than 50 bytes are chunked with a shared id."""
+    raw = text.encode("ascii", errors="replace")
+    if len(raw) <= 50:
+        return [mavlink.MAVLink_statustext_message(severity, raw, 0, 0)]
+    chunks = [raw[i : i + 50] for i in range(0, len(raw), 50)]
+    ident = (hash(text) & 0xFFFE) + 1
+    return [mavlink.MAVLink_statustext_message(severity, c, ident, k) for k, c in enumerate(chunks)]
+
+
+# --------------------------------------------------------------------------- parameters
+REAL32 = M.MAV_PARAM_TYPE_REAL32
+INT32 = M.MAV_PARAM_TYPE_INT32
+
+#: name -> (default value, MAV_PARAM_TYPE, description). Values are sent as floats (C cast).
+PX4_PARAMS: dict[str, tuple[float, int, str]] = {
+    "MIS_TAKEOFF_ALT": (2.5, REAL32, "takeoff height above ground when NAV_TAKEOFF param7 is NaN (m)"),
+    "RTL_RETURN_ALT": (60.0, REAL32, "RTL climbs to this height above home first (m)"),
+    "COM_OF_LOSS_T": (0.5, REAL32, "--strict: offboard setpoint timeout (wall-clock s)"),
+    "COM_DISARM_LAND": (2.0, REAL32, "auto-disarm delay after touchdown (sim s)"),
+    "MPC_XY_VEL_MAX": (10.0, REAL32, "max horizontal speed (m/s)"),
+    "MPC_Z_VEL_MAX_UP": (3.0, REAL32, "max climb rate (m/s)"),
+    "MPC_Z_VEL_MAX_DN": (1.5, REAL32, "max descent rate (m/s)"),
+    "MPC_LAND_SPEED": (0.7, REAL32, "landing descent rate (m/s)"),
+}
+
+ARDUPILOT_PARAMS: dict[str, tuple[float, int, str]] = {
+    "PILOT_TKOFF_ALT": (250.0, REAL32, "takeoff height when NAV_TAKEOFF param7 is NaN (cm)"),
+    "RTL_ALT": (1500.0, INT32, "RTL climbs to this height above home first (cm)"),
+    "DISARM_DELAY": (2.0, INT32, "auto-disarm delay after touchdown (s)"),
+    "WPNAV_SPEED": (1000.0, REAL32, "max horizontal speed (cm/s)"),
+    "WPNAV_SPEED_UP": (300.0, REAL32, "max climb rate (cm/s)"),
+    "WPNAV_SPEED_DN": (150.0, REAL32, "max descent rate (cm/s)"),
+    "LAND_SPEED": (50.0, INT32, "landing descent rate (cm/s)"),
+}
+
+
+def param_value(name: str, value: float, ptype: int, count: int, index: int) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_param_value_message(name.encode("ascii"), float(value), ptype, count, index)

@@ -1,0 +1,157 @@
+"""Shared fixtures for the sim/ tests (all prefixed ``sim_``)."""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+import time
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from sim import FaultConfig, SimConfig, Simulator, write_colliders
+
+#: One building: north 25..35 m, east -5..5 m, up 0..20 m (centre 30,0,10; half sizes 5,5,10).
+SIM_BUILDING = (30.0, 0.0, 10.0, 5.0, 5.0, 10.0)
+SIM_LAT0, SIM_LON0 = 37.792480, -122.397450
+
+
+class SimClient:
+    """A minimal MAVLink 2 ground station over TCP (system 255, component 190) for tests.
+
+    A reader thread parses everything into ``self.messages``; ``wait_for`` scans them with a timeout.
+    """
+
+    def __init__(self, port: int, system: int = 255, component: int = 190) -> None:
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+        self.sock.settimeout(0.2)
+        self.mav = mavlink.MAVLink(None, system, component)
+        self.mav.robust_parsing = True
+        self.messages: list = []
+        self.cond = threading.Condition()
+        self._stop = threading.Event()
+        self._send_lock = threading.Lock()
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+            if not data:
+                break
+            msgs = [m for m in (self.mav.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
+            if msgs:
+                with self.cond:
+                    for m in msgs:
+                        m.rx_wall_s = time.monotonic()
+                    self.messages.extend(msgs)
+                    self.cond.notify_all()
+
+    def send(self, msg) -> None:
+        with self._send_lock:
+            self.sock.sendall(msg.pack(self.mav))
+
+    def mark(self) -> int:
+        """Index to pass as ``since`` so that only later messages count."""
+        with self.cond:
+            return len(self.messages)
+
+    def wait_for(self, kind: str, predicate=None, timeout_s: float = 5.0, since: int = 0):
+        """First message of type ``kind`` (index >= since) satisfying ``predicate``.
+
+        Raises
+        ------
+        TimeoutError
+            If none arrives within ``timeout_s`` (wall clock).
+        """
+        deadline = time.monotonic() + timeout_s
+        with self.cond:
+            i = since
+            while True:
+                while i < len(self.messages):
+                    m = self.messages[i]
+                    i += 1
+                    if m.get_type() == kind and (predicate is None or predicate(m)):
+                        return m
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    raise TimeoutError(f"no {kind} within {timeout_s} s")
+                self.cond.wait(remaining)
+
+    def of_type(self, kind: str, since: int = 0) -> list:
+        with self.cond:
+            return [m for m in self.messages[since:] if m.get_type() == kind]
+
+    def command(self, command: int, *params: float, timeout_s: float = 3.0, target=(1, 1)):
+        """Send COMMAND_LONG and return its COMMAND_ACK."""
+        p = list(params) + [0.0] * (7 - len(params))
+        since = self.mark()
+        self.send(mavlink.MAVLink_command_long_message(target[0], target[1], command, 0, *p))
+        return self.wait_for("COMMAND_ACK", lambda m: m.command == command, timeout_s, since)
+
+    def set_mode_px4(self, main: int, sub: int = 0):
+        return self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
+
+    def setpoint_local(self, north: float, east: float, z: float, type_mask: int | None = None,
+                       yaw: float = math.nan) -> None:
+        if type_mask is None:
+            type_mask = 0b0000_1111_1111_1000 if not math.isfinite(yaw) else 0b0000_1001_1111_1000
+        self.send(mavlink.MAVLink_set_position_target_local_ned_message(
+            0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, type_mask, north, east, z, 0, 0, 0, 0, 0, 0,
+            yaw if math.isfinite(yaw) else 0.0, 0))
+
+    def close(self) -> None:
+        self._stop.set()
+        try:
+            self.sock.close()
+        except OSError:
+            pass
+        self.thread.join(2)
+
+
+@pytest.fixture
+def sim_map(tmp_path):
+    """Path of a tiny map with :data:`SIM_BUILDING`."""
+    return write_colliders(tmp_path / "colliders.csv", SIM_LAT0, SIM_LON0, [SIM_BUILDING])
+
+
+@pytest.fixture
+def sim_start(sim_map):
+    """``sim_start(**config) -> Simulator`` started on an ephemeral port; all stopped at teardown."""
+    sims = []
+
+    def start(**kwargs) -> Simulator:
+        kwargs.setdefault("map_path", sim_map)
+        kwargs.setdefault("port", 0)
+        kwargs.setdefault("speedup", 10.0)
+        if "faults" in kwargs and isinstance(kwargs["faults"], dict):
+            kwargs["faults"] = FaultConfig(**kwargs["faults"])
+        sim = Simulator(SimConfig(**kwargs)).start()
+        sims.append(sim)
+        return sim
+
+    yield start
+    for sim in sims:
+        sim.stop()
+        assert sim.error is None, sim.error
+
+
+@pytest.fixture
+def sim_connect():
+    """``sim_connect(port) -> SimClient``; all closed at teardown."""
+    clients = []
+
+    def connect(port: int, **kwargs) -> SimClient:
+        c = SimClient(port, **kwargs)
+        clients.append(c)
+        return c
+
+    yield connect
+    for c in clients:
+        c.close()

@@ -14,6 +14,8 @@ import numpy as np
 
 GRAVITY_M_S2 = 9.80665
 NAN3 = (math.nan, math.nan, math.nan)
+#: Within this height (m) of the surface, a vehicle not asked to climb has touched down.
+TOUCHDOWN_M = 0.02
 
 
 @dataclass
@@ -203,13 +205,14 @@ class PointMassQuad:
         s.yaw_rad = wrap_pi(s.yaw_rad + rate * dt_s)
         # Ground contact.
         ground = ground_up_fn(s.position_neu[0], s.position_neu[1], s.position_neu[2] + 0.05)
-        if s.position_neu[2] <= ground:
+        if s.position_neu[2] <= ground + TOUCHDOWN_M and v_des[2] <= 0.05:
             s.position_neu[2] = ground
-            if v_des[2] <= 0.0:
-                s.on_ground = True
-                s.velocity_neu[:] = 0.0
-                s.accel_neu[:] = 0.0
-                return True
+            s.on_ground = True
+            s.velocity_neu[:] = 0.0
+            s.accel_neu[:] = 0.0
+            return True
+        if s.position_neu[2] < ground:
+            s.position_neu[2] = ground
             s.velocity_neu[2] = max(s.velocity_neu[2], 0.0)
         return False
 

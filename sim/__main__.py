@@ -40,7 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_argument_group("server")
     g.add_argument("--map", type=Path, default=None,
                    help=f"obstacle map (colliders.csv); default: the project's own, {default_map_path()}")
-    g.add_argument("--host", default="127.0.0.1", help="address to listen on (loopback unless told otherwise)")
+    g.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (loopback unless told otherwise)")
     g.add_argument("--port", type=int, default=5760, help="TCP port (0 = pick a free one)")
     g.add_argument("--speedup", type=float, default=1.0,
                    help="simulated seconds per wall-clock second (heartbeats stay at 1 Hz wall clock)")
@@ -53,11 +54,13 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
                    help="personality: PX4 custom modes, or ArduCopter mode numbers (GUIDED 4, LAND 9, RTL 6)")
     g.add_argument("--strict", action="store_true",
-                   help="PX4-like: NED z only, OFFBOARD needs a setpoint stream and holds after 0.5 s without one")
+                   help="PX4-like: NED z only, OFFBOARD needs a setpoint stream and holds after 0.5 s "
+                   "(wall clock) without one")
     g.add_argument("--start", type=_pair, default=None, metavar="LAT,LON",
                    help="boot position (deg); default: home = the map header's lat0,lon0 at altitude 0")
     g.add_argument("--origin", choices=("home", "boot"), default="home",
-                   help="local NED origin: the home position, or where the vehicle booted (as PX4/ArduPilot EKF)")
+                   help="local NED origin: the home position, or where the vehicle booted "
+                   "(as the PX4/ArduPilot EKF origin)")
     g.add_argument("--radius", type=float, default=0.3, help="vehicle sphere radius for collisions (m)")
     g.add_argument("--wind", type=_pair, default=(0.0, 0.0), metavar="N,E",
                    help="mean wind velocity north,east (m/s, direction the air moves towards)")

@@ -116,10 +116,10 @@ class PointMassQuad:
             for axis in (0, 1):
                 if math.isfinite(pos_t[axis]):
                     err = pos_t[axis] - s.position_neu[axis]
-                    v_des[axis] = math.copysign(
-                        _approach_speed(abs(err), vmax_h, lim.position_gain_1_s, lim.max_horizontal_accel_m_s2),
-                        err,
+                    speed = _approach_speed(
+                        abs(err), vmax_h, lim.position_gain_1_s, lim.max_horizontal_accel_m_s2
                     )
+                    v_des[axis] = math.copysign(speed, err)
         for axis in (0, 1):
             if math.isfinite(vel_t[axis]):
                 v_des[axis] += vel_t[axis]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+import numpy as np
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -34,6 +35,15 @@ class Mode:
     base_flags: int
     behaviour: Behaviour
     armable: bool = True
+
+
+@dataclass
+class Task:
+    """What the vehicle is doing inside the current mode (map frame positions)."""
+
+    kind: Behaviour
+    position_neu: np.ndarray
+    phase: int = 0
 
 
 def px4_custom_mode(main_mode: int, sub_mode: int = 0) -> int:
@@ -101,7 +111,8 @@ class Px4(Personality):
         for name, (flags, main, sub) in mavutil.px4_map.items():
             if name in self._BEHAVIOUR:
                 modes.append(
-                    Mode(name, px4_custom_mode(main, sub), flags, self._BEHAVIOUR[name], name not in self._NOT_ARMABLE)
+                    Mode(name, px4_custom_mode(main, sub), flags, self._BEHAVIOUR[name],
+                         name not in self._NOT_ARMABLE)
                 )
         super().__init__(modes)
         self._unsupported = {
@@ -169,7 +180,8 @@ class ArduCopter(Personality):
         for number, name in mavutil.mode_mapping_acm.items():
             if name in self._BEHAVIOUR:
                 extra = mavlink.MAV_MODE_FLAG_GUIDED_ENABLED if name == "GUIDED" else 0
-                modes.append(Mode(name, number, flags | extra, self._BEHAVIOUR[name], name not in self._NOT_ARMABLE))
+                armable = name not in self._NOT_ARMABLE
+                modes.append(Mode(name, number, flags | extra, self._BEHAVIOUR[name], armable))
         super().__init__(modes)
 
     def mode_for(self, behaviour: Behaviour) -> Mode:

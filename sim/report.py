@@ -116,7 +116,9 @@ class FlightRecorder:
             "up_m": float(up_m),
         }
 
-    def update(self, dt_s: float, position_neu: np.ndarray, armed: bool, airborne: bool, home_up_m: float) -> None:
+    def update(
+        self, dt_s: float, position_neu: np.ndarray, armed: bool, airborne: bool, home_up_m: float
+    ) -> None:
         """Integrate statistics for one physics step (call after the step)."""
         if armed:
             self.armed_time_s += dt_s

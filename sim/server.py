@@ -17,7 +17,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from .autopilot import LinkState
+from .commands import LinkState
 from .faults import FaultConfig, LinkFaults
 from .telemetry import COMPONENT_ID, SYSTEM_ID
 

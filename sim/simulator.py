@@ -60,6 +60,7 @@ class Simulator:
         self._t0 = time.monotonic()
         self.error: BaseException | None = None
         self.behind_s = 0.0
+        self._final_report: dict | None = None
         self.autopilot = Autopilot(config, self.city, self.recorder, self._send, self._emit)
         ap = self.autopilot
         self.recorder.start = self.recorder.place(*ap.position_neu)
@@ -97,7 +98,12 @@ class Simulator:
         return self
 
     def stop(self, timeout_s: float = 5.0) -> dict:
-        """Stop the thread, close sockets and files, write the report if configured; return it."""
+        """Stop the thread, close sockets and files, write the report if configured; return it.
+
+        Idempotent: later calls return the same report.
+        """
+        if self._final_report is not None:
+            return self._final_report
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout_s)
@@ -112,6 +118,7 @@ class Simulator:
             if self.config.report_path is not None:
                 write_report(self.config.report_path, report)
                 self._emit("report", f"report written to {self.config.report_path}")
+            self._final_report = report
         return report
 
     def __enter__(self) -> Simulator:

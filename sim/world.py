@@ -192,8 +192,10 @@ class CityMap:
         Examples
         --------
         >>> city = CityMap(37.0, -122.0, np.array([[0.0, 0.0, 10.0, 5.0, 5.0, 10.0]]))
-        >>> city.ground_up_m(0.0, 0.0, 50.0), city.ground_up_m(0.0, 0.0, 5.0), city.ground_up_m(9.0, 0.0, 50.0)
-        (20.0, 0.0, 0.0)
+        >>> city.ground_up_m(0.0, 0.0, 50.0), city.ground_up_m(0.0, 0.0, 5.0)
+        (20.0, 0.0)
+        >>> city.ground_up_m(9.0, 0.0, 50.0)
+        0.0
         """
         idx = self.candidates(north_m, east_m, radius_m)
         if idx.size == 0:

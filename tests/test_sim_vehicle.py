@@ -1,0 +1,92 @@
+"""Vehicle behaviour over MAVLink: several clients, RTL, wind and GPS noise, the big SF map."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+M = mavlink
+SF_MAP = Path("/work/shared/maps/udacity_sf_colliders.csv")
+
+
+def _takeoff_offboard(c, sim, north=0.0, east=0.0, altitude_m=5.0):
+    c.setpoint_local(north, east, -altitude_m)
+    assert c.set_mode_px4(6).result == 0
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+    sim.wait_until(lambda s: abs(s["position"]["up_m"] - altitude_m) < 0.05, 10)
+
+
+def test_two_clients_each_get_telemetry_and_their_own_acks(sim_start, sim_connect):
+    sim = sim_start()
+    gcs = sim_connect(sim.port, system=255, component=190)
+    mission = sim_connect(sim.port, system=254, component=191)
+    gcs.wait_for("HEARTBEAT")
+    mission.wait_for("HEARTBEAT")
+    assert sim.clients() == 2
+    since = gcs.mark()
+    ack = mission.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert (ack.result, ack.target_system) == (M.MAV_RESULT_ACCEPTED, 254)
+    gcs.wait_for("HEARTBEAT", lambda m: m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, since=since)
+    assert gcs.of_type("COMMAND_ACK", since) == []  # the ack goes to the sender only
+
+
+@pytest.mark.flight
+def test_rtl_returns_home_and_lands(sim_start, sim_connect):
+    sim = sim_start(speedup=20.0)
+    c = sim_connect(sim.port)
+    c.wait_for("HEARTBEAT")
+    since = c.mark()
+    c.send(M.MAVLink_param_set_message(1, 1, b"RTL_RETURN_ALT", 8.0, M.MAV_PARAM_TYPE_REAL32))
+    c.wait_for("PARAM_VALUE", lambda m: m.param_id == "RTL_RETURN_ALT", since=since)
+    _takeoff_offboard(c, sim)
+    c.setpoint_local(-20.0, 10.0, -5.0)
+    sim.wait_until(lambda s: abs(s["position"]["north_m"] + 20) < 0.05, 10)
+    assert c.command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH).result == 0
+    state = sim.wait_until(lambda s: s["on_ground"] and not s["armed"], 30)
+    assert state["mode"] == "RTL"
+    report = sim.report()
+    assert report["max_altitude_m"] == pytest.approx(8.0, abs=0.15)  # climbed to RTL_RETURN_ALT first
+    assert (report["landed"]["north_m"], report["landed"]["east_m"]) == pytest.approx((0.0, 0.0), abs=0.1)
+
+
+@pytest.mark.flight
+def test_wind_pushes_but_the_controller_holds(sim_start, sim_connect):
+    sim = sim_start(speedup=20.0, wind_m_s=(0.0, 5.0))
+    c = sim_connect(sim.port)
+    c.wait_for("HEARTBEAT")
+    _takeoff_offboard(c, sim, altitude_m=5.0)
+    time.sleep(0.5)  # 10 s simulated hover
+    pos = sim.truth()["position"]
+    # Steady state: drag 0.3/s * 5 m/s = 1.5 m/s^2 against gains 4/s * 1/s -> ~0.375 m downwind.
+    assert 0.2 < pos["east_m"] < 0.6 and abs(pos["north_m"]) < 0.05
+
+
+def test_gps_noise_moves_reports_not_truth(sim_start, sim_connect):
+    sim = sim_start(gps_noise_m=2.0, seed=7)
+    c = sim_connect(sim.port)
+    c.wait_for("HEARTBEAT")
+    time.sleep(1.0)
+    xs = [m.x for m in c.of_type("LOCAL_POSITION_NED")]
+    assert len(set(xs)) > 3 and max(abs(x) for x in xs) < 10
+    assert all(m.z == 0.0 for m in c.of_type("LOCAL_POSITION_NED"))  # on the ground z stays exactly 0
+    truth = sim.truth()["position"]
+    assert (truth["north_m"], truth["east_m"]) == (0.0, 0.0)
+
+
+@pytest.mark.flight
+@pytest.mark.skipif(not SF_MAP.exists(), reason="shared SF map not available")
+def test_sf_map_flight_keeps_up_with_speedup(sim_start, sim_connect):
+    """3845 boxes: the per-step truth check must not slow the simulation down."""
+    sim = sim_start(map_path=SF_MAP, speedup=20.0)
+    c = sim_connect(sim.port)
+    c.wait_for("HEARTBEAT")
+    _takeoff_offboard(c, sim, altitude_m=120.0)  # above the tallest building (106 m)
+    c.setpoint_local(150.0, 150.0, -120.0)
+    sim.wait_until(lambda s: math.hypot(s["position"]["north_m"] - 150, s["position"]["east_m"] - 150) < 0.1, 20)
+    report = sim.report()
+    assert report["collisions"] == [] and 0 < report["min_clearance_m"] < 50
+    assert sim.behind_s < 0.5

@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     g = p.add_argument_group("server")
     g.add_argument("--map", type=Path, default=None,
-                   help=f"obstacle map (colliders.csv); default: the project's own, {default_map_path()}")
+                   help=f"obstacle map (colliders.csv); None = the project's own, {default_map_path()}")
     g.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (loopback unless told otherwise)")
     g.add_argument("--port", type=int, default=5760, help="TCP port (0 = pick a free one)")
@@ -48,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--report", type=Path, default=None, help="write the JSON flight report here on exit")
     g.add_argument("--tlog", type=Path, default=None, help="write a MAVLink telemetry log (.tlog) here")
     g.add_argument("--duration", type=float, default=None,
-                   help="exit by itself after this many wall-clock seconds (default: run until signalled)")
+                   help="exit by itself after this many wall-clock seconds (None = run until signalled)")
     g.add_argument("-q", "--quiet", action="store_true", help="no status lines")
     g = p.add_argument_group("vehicle")
     g.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",

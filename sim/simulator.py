@@ -76,6 +76,11 @@ class Simulator:
         return self._server.port
 
     @property
+    def started_wall_s(self) -> float:
+        """``time.monotonic()`` when the simulator started (origin of the link-fault clock)."""
+        return self._t0
+
+    @property
     def host(self) -> str:
         return self.config.host
 

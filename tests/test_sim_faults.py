@@ -60,7 +60,7 @@ def test_outage_silences_the_link_then_recovers(sim_start, sim_connect):
     sim = sim_start(faults={"outage_start_s": 0.6, "outage_duration_s": 1.0})
     c = sim_connect(sim.port)
     c.wait_for("HEARTBEAT")
-    t0 = sim._t0  # the outage clock starts with the simulator
+    t0 = sim.started_wall_s  # the outage clock starts with the simulator
     c.wait_for("HEARTBEAT", timeout_s=4, since=c.mark())  # first heartbeat after the outage (t ~ 1.6 s)
     times = [m.rx_wall_s - t0 for m in c.messages]
     assert any(t < 0.6 for t in times)

@@ -562,6 +562,7 @@ class Mission:
         self._sample(force=True)
         r = self.result
         r.flight_time_s = self.clock() - self._takeoff_s
+        r.flown_length_m = path_length_m(np.array(self._track)[:, 1:])
         if len(r.waypoints):
             p = self._map_position()
             r.landing_error_m = math.hypot(p.north_m - r.waypoints[-1, 0], p.east_m - r.waypoints[-1, 1])

@@ -451,3 +451,104 @@ def test_ctrl_c_while_landing_waits_for_touchdown(clock):
     with pytest.raises(KeyboardInterrupt):
         mission.run()
     assert v.telemetry.on_ground and not v.telemetry.armed and mission.state is S.MANUAL
+
+
+# ------------------------------------------------------------------------- missions against sim/
+# conftest's map: one building, north 25..35 m, east -5..5 m, 20 m tall, at the map origin 37.79248, -122.39745.
+SIM_ORIGIN = Geodetic(37.792480, -122.397450, 0.0)
+
+
+def around_the_building(start_north_m, start_east_m):
+    """Hand-made plan at 10 m: from the start, 12 m east of the building (>= 7 m clear), to 60 m north."""
+    return np.array([[start_north_m, start_east_m, 10.0, 0.0], [18.0, 12.0, 10.0, 0.0], [42.0, 12.0, 10.0, 0.0],
+                     [60.0, 0.0, 10.0, 0.0]])
+
+
+def fly(sim, plan_fn=around_the_building, **kwargs):
+    import vehicle as vh  # pymavlink only in the flight tests
+
+    with vh.MavlinkVehicle(f"tcp:127.0.0.1:{sim.port}", heartbeat_timeout_s=5.0,
+                           link_timeout_s=kwargs.pop("link_timeout_s", 3.0)) as v:
+        mission = m.Mission(v, plan_fn, altitude_m=10.0, map_origin=SIM_ORIGIN, vehicle_errors=(vh.VehicleError,),
+                            **kwargs)
+        return mission.run()
+
+
+@pytest.mark.flight
+@pytest.mark.parametrize("autopilot, start, origin", [
+    ("px4", None, "home"),
+    ("px4", (37.792300, -122.397300), "boot"),  # ~20 m S, 13 m E of the map origin; EKF origin = boot point
+    ("ardupilot", None, "home"),
+])
+def test_mission_against_sim(sim_start, autopilot, start, origin):
+    sim = sim_start(strict=True, autopilot=autopilot, start=start, origin=origin)
+    result = fly(sim)
+    report = sim.stop()
+    assert result.completed and result.final_state is S.MANUAL
+    assert report["landed"]["north_m"] == pytest.approx(60.0, abs=1.0)
+    assert report["landed"]["east_m"] == pytest.approx(0.0, abs=1.0)
+    assert not report["collisions"] and not report["crashed"]
+    assert report["min_clearance_m"] >= 5.0
+    assert not report["final"]["armed"]
+    assert result.landing_error_m < 1.0
+
+
+@pytest.mark.flight
+def test_mission_retries_arming_against_sim(sim_start):
+    sim = sim_start(strict=True, faults={"deny_arm_count": 2})
+    result = fly(sim, arm_retry_s=0.2)
+    report = sim.stop()
+    arms = [c for c in report["commands"] if c["name"] == "MAV_CMD_COMPONENT_ARM_DISARM" and c["params"][0] == 1]
+    assert [c["result_name"] for c in arms] == ["MAV_RESULT_TEMPORARILY_REJECTED"] * 2 + ["MAV_RESULT_ACCEPTED"]
+    assert result.completed
+
+
+@pytest.mark.flight
+def test_mission_no_path_never_takes_off_against_sim(sim_start):
+    sim = sim_start(strict=True)
+
+    def no_path(n, e):
+        raise m.NoPathFound("walled in")
+
+    with pytest.raises(m.NoPathFound):
+        fly(sim, no_path)
+    report = sim.stop()
+    assert not report["airborne_time_s"] and not report["landings"]  # never left the ground
+    assert not report["final"]["armed"]
+
+
+@pytest.mark.flight
+def test_mission_link_outage_against_sim(sim_start):
+    # the link drops for 5 s (wall) in flight, then comes back: the mission lands where it is.
+    # (heartbeats come at 1 Hz, so a link timeout under ~2 s would see ordinary jitter as an outage)
+    sim = sim_start(strict=True, speedup=1.0, faults={"outage_start_s": 3.0, "outage_duration_s": 5.0})
+    with pytest.raises(m.FlightAborted, match="lost and came back.*landed") as err:
+        fly(sim, link_timeout_s=2.0, link_lost_timeout_s=10.0)
+    report = sim.stop()
+    assert report["final"]["on_ground"] and not report["final"]["armed"] and not report["collisions"]
+    assert err.value.result.final_state is S.MANUAL
+
+
+@pytest.mark.flight
+def test_mission_link_lost_for_good_against_sim(sim_start):
+    sim = sim_start(strict=True, speedup=2.0, faults={"outage_start_s": 3.0, "outage_duration_s": 600.0})
+    with pytest.raises(m.LinkLostInFlight, match="failsafe") as err:
+        fly(sim, link_timeout_s=2.0, link_lost_timeout_s=2.0)
+    assert err.value.result.final_state is S.FAILED
+    assert not sim.stop()["collisions"]
+
+
+@pytest.mark.flight
+def test_600_m_mission_time_against_sim(sim_start):
+    # ~630 m with two right-angle turns; the issue's bound: 1.3 x (flown / cruise + takeoff + landing)
+    def plan(n, e):
+        return np.array([[a, b, 10.0, 0.0] for a, b in
+                         [(n, e), (n, e + 100), (n + 300, e + 100), (n + 300, e + 300), (n + 310, e + 310)]])
+
+    sim = sim_start(strict=True, speedup=10.0)
+    result = fly(sim, plan)
+    report = sim.stop()
+    cruise_mps, climb_mps, descent_mps = 10.0, 3.0, 1.5  # the sim's limits
+    ideal_s = (report["distance_flown_m"] - 20.0) / cruise_mps + 10.0 / climb_mps + 10.0 / descent_mps
+    assert result.completed and not report["collisions"]
+    assert report["airborne_time_s"] <= 1.3 * ideal_s

@@ -478,3 +478,31 @@ def test_hold_uses_loiter_mode(fake, connect):
     v.hold()
     mode_cmd = [m for m in ap.of_type("COMMAND_LONG") if m.command == mavlink.MAV_CMD_DO_SET_MODE][-1]
     assert (mode_cmd.param2, mode_cmd.param3) == (4, 3)  # AUTO.LOITER
+
+
+# ------------------------------------------------------------------------------ flights against sim/
+@pytest.mark.flight
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_fly_against_sim(sim_start, autopilot):
+    sim = sim_start(strict=True, autopilot=autopilot)
+    with vh.MavlinkVehicle(f"tcp:127.0.0.1:{sim.port}", heartbeat_timeout_s=5.0) as v:
+        assert v.autopilot is vh.Autopilot(autopilot)
+        t = v.wait_for(lambda t: t.has_local and t.home is not None, 5.0, "position and home")
+        assert t.on_ground and not t.armed
+        v.arm()
+        target = v.takeoff(8.0)
+        v.wait_for(lambda t: t.down_m < target.down_m + 0.5, 20.0, "takeoff altitude")
+        assert v.in_control or v.wait_for(lambda t: t.mode in ("OFFBOARD", "GUIDED"), 2.0, "control mode")
+        v.goto_local(target.north_m - 10.0, target.east_m + 5.0, target.down_m, yaw_rad=math.pi)
+        v.wait_for(lambda t: math.hypot(t.north_m - target.north_m + 10, t.east_m - target.east_m - 5) < 0.3
+                   and abs(t.heading_rad - math.pi) < 0.1, 20.0, "goto")
+        v.land()
+        v.wait_for(lambda t: t.on_ground, 30.0, "touchdown")
+        if v.telemetry.armed:
+            v.disarm()
+        assert not v.telemetry.armed
+    report = sim.stop()
+    assert report["landed"]["north_m"] == pytest.approx(-10.0, abs=0.3)
+    assert report["landed"]["east_m"] == pytest.approx(5.0, abs=0.3)
+    assert not report["collisions"]
+    assert all(c["result_name"] == "MAV_RESULT_ACCEPTED" for c in report["commands"])

@@ -121,6 +121,17 @@ def lazy_theta_star(grid, si, sj, gi, gj):
     mutually visible, the path length in cells (= metres at 1 m) and the number of expansions; ``cells`` is empty
     and ``cost`` is -1 when the goal is unreachable. Moves between neighbours follow the grid planner's graph
     (8-connected, no diagonal past a blocked orthogonal cell), so Theta* finds a path whenever the grid planner does.
+
+    A wall across rows 0-3 of column 2; the route turns once, at the free cell next to the wall's end, in one
+    straight leg each way (an 8-connected path would need 45-degree steps):
+
+    >>> grid = np.zeros((6, 5), dtype=np.bool_)
+    >>> grid[0:4, 2] = True
+    >>> cells, cost, expanded = lazy_theta_star(grid, 0, 0, 0, 4)
+    >>> cells.tolist()
+    [[0, 0], [4, 1], [4, 3], [0, 4]]
+    >>> round(float(cost), 3) == round(2 * math.hypot(4, 1) + 2, 3)
+    True
     """
     n, m = grid.shape
     size = n * m

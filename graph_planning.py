@@ -24,6 +24,7 @@ The per-map structure (grid, skeleton, Voronoi graph, roadmap, height map) is bu
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import time
@@ -34,7 +35,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 import any_angle
+import grid3d_planning
 import planning_utils as pu
+import sampling_planning
 
 PLANNERS = ("grid", "medial-axis", "voronoi", "prm", "grid3d", "any-angle")
 PLANNERS_3D = ("prm", "grid3d")
@@ -89,6 +92,18 @@ def plan(
         For an unknown planner or a goal altitude a 2D planner cannot fly.
     planning_utils.OutsideGridError, planning_utils.BlockedCellError, planning_utils.NoPathError
         For a start or goal off the map or blocked, or no path.
+
+    Examples
+    --------
+    A wall 2 m thick, 60 m long and 20 m tall (as in ``GridMap``'s example); with a 2 m margin the cells north
+    -3..3 m, east -32..32 m are blocked, so the route turns at the first free cell centres past the east end:
+
+    >>> boxes = np.array([[0, 0, 10, 1, 30, 10], [-40, -40, 1, 1, 1, 1], [40, 40, 1, 1, 1, 1]])
+    >>> route = plan("any-angle", boxes, (-20.0, 0.0), (20.0, 0.0), altitude_m=5, safety_m=2)
+    >>> route.waypoints[:, :3].tolist()
+    [[-19.5, 0.5, 5.0], [-3.5, 32.5, 5.0], [3.5, 32.5, 5.0], [20.5, 0.5, 5.0]]
+    >>> colliding_legs(route, boxes, safety_m=2)
+    []
     """
     if name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; choose from {', '.join(PLANNERS)}")
@@ -110,7 +125,7 @@ def plan(
 
 
 def _with_extra(result: pu.Plan, extra: dict) -> pu.Plan:
-    return pu.Plan(**{**result.__dict__, "extra": {**result.extra, **extra}})
+    return dataclasses.replace(result, extra={**result.extra, **extra})
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -118,19 +133,13 @@ def _with_extra(result: pu.Plan, extra: dict) -> pu.Plan:
 
 
 def _builder(name: str) -> Callable:
-    if name == "grid3d":
-        import grid3d_planning
-
-        return grid3d_planning.Grid3DPlanner.build
-    if name == "prm":
-        import sampling_planning
-
-        return sampling_planning.ProbabilisticRoadmap.build
     return {
         "grid": pu.GridMap.build,
         "medial-axis": MedialAxisRoadmap.build,
         "voronoi": VoronoiRoadmap.build,
         "any-angle": AnyAnglePlanner.build,
+        "grid3d": grid3d_planning.Grid3DPlanner.build,
+        "prm": sampling_planning.ProbabilisticRoadmap.build,
     }[name]
 
 
@@ -180,8 +189,6 @@ def colliding_legs(plan_: pu.Plan, obstacles: np.ndarray, safety_m: float, *, sk
     3D planners: every leg (a 3D segment) must stay out of every obstacle box grown by ``safety_m`` on all
     sides (touching the grown box is allowed). ``skip_lead_in`` exempts leg 0, the lead-in of a snapped start.
     """
-    import grid3d_planning
-
     waypoints = np.asarray(plan_.waypoints, dtype=np.float64)
     first = 1 if skip_lead_in else 0
     if len(waypoints) < 2:
@@ -319,6 +326,7 @@ class Roadmap2D:
     weights: np.ndarray
     tree: object  # scipy.spatial.cKDTree over node_cells
     extra: dict
+    edges_ne: np.ndarray  # (E, 2, 2) edge segments in map metres, for plots
 
     @classmethod
     def from_edges(cls, name: str, gmap: pu.GridMap, node_cells: np.ndarray, edges: np.ndarray, extra: dict):
@@ -335,15 +343,14 @@ class Roadmap2D:
         components = int(connected_components(csr, directed=False)[0]) if m else 0
         extra = {**extra, "nodes": int(m), "edges": int(len(edges)), "components": components}
         tree = cKDTree(node_cells.astype(np.float64)) if m else None
+        centre = np.array([gmap.north_offset + 0.5, gmap.east_offset + 0.5])
+        edges_ne = np.stack([node_cells[edges[:, 0]], node_cells[edges[:, 1]]], axis=1) + centre
         return cls(name, gmap, node_cells, csr.indptr.astype(np.int64), csr.indices.astype(np.int64),
-                   csr.data.astype(np.float64), tree, extra)
+                   csr.data.astype(np.float64), tree, extra, edges_ne.reshape(-1, 2, 2))
 
     def structure(self) -> dict:
         """Edges ``(E, 2, 2)`` in map metres (north, east), for plots."""
-        rows = np.repeat(np.arange(len(self.node_cells)), np.diff(self.indptr))
-        once = rows < self.indices
-        centre = np.array([self.gmap.north_offset + 0.5, self.gmap.east_offset + 0.5])
-        return {"edges": np.stack([self.node_cells[rows[once]], self.node_cells[self.indices[once]]], axis=1) + centre}
+        return {"edges": self.edges_ne}
 
     def _links(self, cell: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """Nodes visible from ``cell`` among its nearest, and the leg lengths; empty if none is visible."""

@@ -6,6 +6,7 @@ is the 1 m square north [i, i + 1), east [j, j + 1) and its centre is (i + 0.5, 
 
 from __future__ import annotations
 
+import doctest
 import math
 
 import numpy as np
@@ -13,8 +14,11 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+import any_angle
 import graph_planning as gp
+import grid3d_planning
 import planning_utils as pu
+import sampling_planning
 
 POSTS_40 = [[0.25, 0.25, 0.1, 0.25, 0.25, 0.1], [39.75, 39.75, 0.1, 0.25, 0.25, 0.1]]  # grid 40 x 40, low
 PLANNERS_2D = [name for name in gp.PLANNERS if name not in gp.PLANNERS_3D]
@@ -39,6 +43,11 @@ WALL = boxes([20.0, 15.0, 10.0, 1.0, 15.0, 10.0])
 
 def test_planner_names_are_the_six_the_cli_offers():
     assert gp.PLANNERS == ("grid", "medial-axis", "voronoi", "prm", "grid3d", "any-angle")
+
+
+@pytest.mark.parametrize("module", [gp, any_angle, grid3d_planning, sampling_planning], ids=lambda m: m.__name__)
+def test_docstring_examples_hold(module):
+    assert doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE).failed == 0
 
 
 def test_unknown_planner_is_a_value_error_naming_the_choices():

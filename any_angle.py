@@ -99,7 +99,7 @@ def visible(grid, i0, j0, i1, j1):
 
 @njit(cache=True)
 def segments_visible(grid, cells_a, cells_b):
-    """Batch :func:`visible` over ``(E, 2)`` cell pairs; cells off the grid are not visible. Returns ``(E,)`` bool."""
+    """Batch :func:`visible` over ``(E, 2)`` cell pairs, ``(E,)`` bool; cells off the grid are not visible."""
     n, m = grid.shape
     out = np.zeros(cells_a.shape[0], np.bool_)
     for k in range(cells_a.shape[0]):
@@ -120,7 +120,8 @@ def lazy_theta_star(grid, si, sj, gi, gj):
     Returns ``(cells, cost, expanded)``: the turning cells ``(K, 2)`` from start to goal, every consecutive pair
     mutually visible, the path length in cells (= metres at 1 m) and the number of expansions; ``cells`` is empty
     and ``cost`` is -1 when the goal is unreachable. Moves between neighbours follow the grid planner's graph
-    (8-connected, no diagonal past a blocked orthogonal cell), so Theta* finds a path whenever the grid planner does.
+    (8-connected, no diagonal past a blocked orthogonal cell), so Theta* finds a path whenever the grid planner
+    does.
 
     A wall across rows 0-3 of column 2; the route turns once, at the free cell next to the wall's end, in one
     straight leg each way (an 8-connected path would need 45-degree steps):

@@ -108,7 +108,9 @@ def plan(
     if name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; choose from {', '.join(PLANNERS)}")
     if name not in PLANNERS_3D and goal_alt_m is not None and goal_alt_m != altitude_m:
-        raise ValueError(f"planner {name!r} flies at one altitude ({altitude_m} m); goal_alt_m needs grid3d or prm")
+        raise ValueError(
+            f"planner {name!r} flies at one altitude ({altitude_m} m); goal_alt_m needs grid3d or prm"
+        )
     obstacles = np.asarray(obstacles, dtype=np.float64)
     if name == "grid":
         gmap, build_ms = structure_for("grid", obstacles, altitude_m, safety_m)
@@ -181,7 +183,9 @@ def clear_cache() -> None:
 # The shared collision check
 
 
-def colliding_legs(plan_: pu.Plan, obstacles: np.ndarray, safety_m: float, *, skip_lead_in: bool = False) -> list[int]:
+def colliding_legs(
+    plan_: pu.Plan, obstacles: np.ndarray, safety_m: float, *, skip_lead_in: bool = False
+) -> list[int]:
     """Indices of the legs of ``plan_`` that break its planner's collision rule (empty = collision-free).
 
     2D planners (all waypoints at one altitude, planner not in :data:`PLANNERS_3D`): every waypoint must be a
@@ -215,7 +219,9 @@ def colliding_legs(plan_: pu.Plan, obstacles: np.ndarray, safety_m: float, *, sk
     return bad
 
 
-def legs_collision_free(plan_: pu.Plan, obstacles: np.ndarray, safety_m: float, *, skip_lead_in: bool = False) -> bool:
+def legs_collision_free(
+    plan_: pu.Plan, obstacles: np.ndarray, safety_m: float, *, skip_lead_in: bool = False
+) -> bool:
     """True if :func:`colliding_legs` finds no leg in collision."""
     return not colliding_legs(plan_, obstacles, safety_m, skip_lead_in=skip_lead_in)
 
@@ -464,7 +470,7 @@ class VoronoiRoadmap(Roadmap2D):
         ridges = np.asarray(diagram.ridge_vertices, dtype=np.int64)
         ridges = ridges[(ridges >= 0).all(axis=1)]
         vertex_cells = np.floor(diagram.vertices).astype(np.int64)
-        on_grid = (vertex_cells[:, 0] >= 0) & (vertex_cells[:, 0] < n) & (vertex_cells[:, 1] >= 0) & (vertex_cells[:, 1] < m)
+        on_grid = ((vertex_cells >= 0) & (vertex_cells < (n, m))).all(axis=1)
         vertex_ok = on_grid.copy()
         vertex_ok[on_grid] = free_mask(grid)[vertex_cells[on_grid, 0], vertex_cells[on_grid, 1]]
         ridges = ridges[vertex_ok[ridges].all(axis=1)]

@@ -3,15 +3,19 @@
 The map becomes one float array ``floor_m[north_idx, east_idx]`` (same cells and offsets as
 ``planning_utils.create_grid``): the lowest altitude at which the cell is free, i.e. the highest
 ``top + safety_m`` of the obstacles whose grown footprint touches the cell (``-inf`` where none does). So
-``floor_m > z`` is exactly ``create_grid(obstacles, z, safety_m)[0]`` for every altitude ``z``, and one array serves
-every altitude.
+``floor_m > z`` is exactly ``create_grid(obstacles, z, safety_m)[0]`` for every altitude ``z``, and one array
+serves every altitude.
 
-``grid3d`` searches cells ``(north_idx, east_idx, level)`` with ``level`` altitudes ``base + k * dz`` (``dz <= 5`` m,
-chosen so the start and goal altitudes are both levels): 8-connected horizontal moves at one level (no diagonal
-past a blocked side cell), and vertical moves of one level costing ``climb_weight`` or ``descent_weight`` per
-metre. The cheapest route may climb over a low building instead of going around it, and may end on a rooftop
-(``goal_alt_m`` at least the roof plus the margin). A leg is accepted when every cell of its 2D supercover is
-free at the lower of its two end altitudes, so a leg never dips into a grown box; pruning uses the same test.
+``grid3d`` searches cells ``(north_idx, east_idx, level)`` with ``level`` altitudes ``base + k * dz``
+(``dz <= 5`` m, chosen so the start and goal altitudes are both levels, up to the first level above every
+obstacle): 8-connected horizontal moves at one level (no diagonal past a blocked side cell), and vertical moves
+of one level costing ``climb_weight`` or ``descent_weight`` per metre. The cheapest route may climb over a low
+building instead of going around it, and may end on a rooftop (``goal_alt_m`` at least the roof plus the
+margin). A leg is accepted when every cell of its 2D supercover is free at the lower of its two end altitudes,
+so a leg never dips into a grown box; pruning uses the same test.
+
+Memory: the search workspace has ``levels * cells`` entries (44 x 921 x 921 on the SF map at 5 m), allocated
+per query with ``np.zeros`` / ``np.empty`` so the operating system maps only the pages the search touches.
 """
 
 from __future__ import annotations
@@ -277,7 +281,8 @@ def resolve_endpoints_3d(
             nearest = pu.nearest_free_cell(floor > altitude_m, start_cell)
             if nearest is not None:
                 lead_in, start_cell = np.asarray(start_ne, dtype=np.float64), nearest
-    return _check_cell(floor, "start", start_cell, altitude_m), _check_cell(floor, "goal", goal_cell, goal_alt_m), lead_in
+    start_cell = _check_cell(floor, "start", start_cell, altitude_m)
+    return start_cell, _check_cell(floor, "goal", goal_cell, goal_alt_m), lead_in
 
 
 def inside_footprint(obstacles: np.ndarray, point_ne: Sequence[float], altitude_m: float) -> bool:

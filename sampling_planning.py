@@ -27,8 +27,11 @@ _LINK_CANDIDATES = (16, 64)
 
 @dataclass(frozen=True)
 class ProbabilisticRoadmap:
-    """A roadmap on one map, margin and base altitude. ``nodes`` ``(M, 3)`` rows ``[north_idx, east_idx,
-    altitude_m]`` (cells of ``floor``); ``graph`` is a ``networkx.Graph`` over node indices with ``weight`` in m."""
+    """A roadmap on one map, margin and base altitude.
+
+    ``nodes`` ``(M, 3)`` rows ``[north_idx, east_idx, altitude_m]`` (cells of ``floor``); ``graph`` is a
+    ``networkx.Graph`` over node indices with ``weight`` in metres.
+    """
 
     obstacles: np.ndarray
     floor: np.ndarray
@@ -130,7 +133,7 @@ class ProbabilisticRoadmap:
         goal_alt_m: float | None = None,
         snap_start: bool = False,
     ) -> pu.Plan:
-        """Route from ``start_ne`` at ``altitude_m`` to ``goal_ne`` at ``goal_alt_m`` (default the same) on the roadmap.
+        """Route from ``start_ne`` at ``altitude_m`` to ``goal_ne`` at ``goal_alt_m`` (default: the same).
 
         Raises ``OutsideGridError``, ``BlockedCellError`` or ``NoPathError`` (also when the roadmap does not
         connect the two, though a path may exist).
@@ -188,7 +191,9 @@ class ProbabilisticRoadmap:
         )
 
 
-def connection_rate(roadmap: ProbabilisticRoadmap, queries: Sequence[tuple[Sequence[float], Sequence[float]]]) -> float:
+def connection_rate(
+    roadmap: ProbabilisticRoadmap, queries: Sequence[tuple[Sequence[float], Sequence[float]]]
+) -> float:
     """Fraction of ``queries`` (pairs of map points) that the roadmap connects."""
     connected = 0
     for start_ne, goal_ne in queries:

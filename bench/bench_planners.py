@@ -92,7 +92,8 @@ def trace_loops(blocked: np.ndarray) -> list[np.ndarray]:
             k = min(candidates, key=turn)
         points = np.array(loop)
         previous, following = np.roll(points, 1, axis=0), np.roll(points, -1, axis=0)
-        cross = (points - previous)[:, 0] * (following - points)[:, 1] - (points - previous)[:, 1] * (following - points)[:, 0]
+        incoming, outgoing_leg = points - previous, following - points
+        cross = incoming[:, 0] * outgoing_leg[:, 1] - incoming[:, 1] * outgoing_leg[:, 0]
         loops.append(points[cross != 0])
     return loops
 
@@ -118,8 +119,9 @@ class Yardstick:
         holes = [loop[::-1] for k, loop in enumerate(loops) if k != outer]  # clockwise
         t0 = time.perf_counter()
         self.environment = PolygonEnvironment()
-        self.environment.store([tuple(p) for p in boundary.tolist()], [[tuple(p) for p in h.tolist()] for h in holes],
-                               validate=False)  # store() also prepares the visibility graph
+        self.environment.store(  # store() also prepares the visibility graph
+            [tuple(p) for p in boundary.tolist()], [[tuple(p) for p in h.tolist()] for h in holes], validate=False
+        )
         self.prepare_ms = (time.perf_counter() - t0) * 1e3
         self.component = component
         self.vertices = int(len(boundary) + sum(len(h) for h in holes))
@@ -215,8 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--altitude", type=float, default=5.0, help="flight altitude in m (default: %(default)s)")
     parser.add_argument("--safety", type=float, default=5.0, help="safety margin in m (default: %(default)s)")
     parser.add_argument("--repeat", type=int, default=5, help="timed calls per query (default: %(default)s)")
-    parser.add_argument("--builds", type=int, default=3, help="timed fresh builds per planner (default: %(default)s)")
-    parser.add_argument("--prm-pairs", type=int, default=40, help="query pairs for the PRM rate (default: %(default)s)")
+    parser.add_argument("--builds", type=int, default=3, help="fresh builds per planner (default: %(default)s)")
+    parser.add_argument("--prm-pairs", type=int, default=40, help="PRM rate query pairs (default: %(default)s)")
     parser.add_argument("--skip-reference", action="store_true", help="skip the extremitypathfinder yardstick")
     args = parser.parse_args(argv)
 
@@ -261,8 +263,9 @@ def main(argv: list[str] | None = None) -> int:
             clearance = min_clearance_m(result.waypoints[:, :3], obstacles)
             note = f"COLLIDES legs {bad}" if bad else (f"max alt {result.waypoints[:, 2].max():.0f} m"
                                                        if planner in gp.PLANNERS_3D else "")
-            rows.append((planner, name, build_ms, query_ms, result.length_m, ratio, len(result.waypoints), clearance,
-                         note))
+            rows.append(
+                (planner, name, build_ms, query_ms, result.length_m, ratio, len(result.waypoints), clearance, note)
+            )
 
     header = f"{'planner':<12} {'query':<9} {'build ms':>9} {'query ms':>9} {'length m':>9} {'/ shortest':>10} " \
              f"{'waypoints':>9} {'clear m':>8}  note"
@@ -276,8 +279,9 @@ def main(argv: list[str] | None = None) -> int:
         print("shortest   " + ", ".join(f"{k} {v:.1f} m" for k, v in reference.items()))
 
     rng = np.random.default_rng(0)
-    prm_rows = prm_failure_rates(obstacles, gmap, altitude, safety, (250, 500, 1000, 2000), (0, 1, 2), args.prm_pairs,
-                                 rng)
+    prm_rows = prm_failure_rates(
+        obstacles, gmap, altitude, safety, (250, 500, 1000, 2000), (0, 1, 2), args.prm_pairs, rng
+    )
     print()
     print(f"PRM over {args.prm_pairs} random grid-connected pairs x 3 seeds (k = 10, altitude band "
           f"{altitude}-{altitude + 20} m)")

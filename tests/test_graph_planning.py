@@ -93,7 +93,9 @@ def test_every_planner_reports_a_goal_in_the_wall_with_the_nearest_free_cell(nam
 
 
 # A closed square yard around cell (25, 25), walls 20 m tall: no way in at 5 m.
-YARD = boxes([30, 25, 10, 0.5, 6, 10], [20, 25, 10, 0.5, 6, 10], [25, 20, 10, 6, 0.5, 10], [25, 30, 10, 6, 0.5, 10])
+YARD = boxes(
+    [30, 25, 10, 0.5, 6, 10], [20, 25, 10, 0.5, 6, 10], [25, 20, 10, 6, 0.5, 10], [25, 30, 10, 6, 0.5, 10]
+)
 
 
 @pytest.mark.parametrize("name", PLANNERS_2D)

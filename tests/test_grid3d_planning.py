@@ -56,7 +56,7 @@ def test_height_map_blocks_exactly_the_cells_create_grid_blocks_at_every_altitud
 
 
 def test_a_leg_touching_the_grown_box_is_clear_and_one_cutting_its_corner_is_not():
-    box = np.array([[0.0, 0.0, 5.0, 1.0, 1.0, 5.0]])  # 2 x 2 m footprint, 10 m tall; margin 1 grows it to 4 x 4 x 11
+    box = np.array([[0.0, 0.0, 5.0, 1.0, 1.0, 5.0]])  # 2 x 2 m, 10 m tall; a 1 m margin grows it to 4 x 4 x 11
     along_the_face = np.array([[-5.0, 2.0, 5.0], [5.0, 2.0, 5.0]])
     touching_the_corner = np.array([[-3.0, 1.0, 5.0], [-1.0, 3.0, 5.0]])  # meets the grown box only at (-2, 2)
     across_the_corner = np.array([[-3.0, 0.5, 5.0], [-0.5, 3.0, 5.0]])  # passes (-1.75, 1.75), inside

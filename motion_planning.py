@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -205,6 +206,207 @@ def save_plot(path, setting: Setting, plan: Plan, track_ne=None) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------------------
+# Flying
+
+
+class PlanRefused(Exception):
+    """Raised inside the mission's planning step; carries the :class:`UserError` for the CLI."""
+
+    def __init__(self, error: UserError):
+        super().__init__(str(error))
+        self.error = error
+
+
+def open_logs(log_dir: str | Path) -> tuple[Path, Path, logging.Handler]:
+    """Create ``log_dir`` and a navigation log handler (flushed after every record) plus a tlog path."""
+    import time
+
+    log_dir = Path(log_dir)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    nav_path, tlog_path = log_dir / f"navlog-{stamp}.txt", log_dir / f"flight-{stamp}.tlog"
+    handler = logging.FileHandler(nav_path, encoding="utf-8")  # StreamHandler flushes after each record
+    handler.setLevel(logging.INFO)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    return nav_path, tlog_path, handler
+
+
+def fly(
+    setting: Setting,
+    goal_ne: Sequence[float],
+    *,
+    connection: str,
+    planner: str,
+    goal_alt_m: float | None,
+    seed: int,
+    heartbeat_timeout_s: float,
+    arm_timeout_s: float,
+    log_dir: str | Path,
+    plot: str | None,
+    out,
+) -> int:
+    """Connect, arm, plan from where the vehicle is, take off, fly, land at the goal, disarm.
+
+    Returns the exit code; problems before takeoff raise :class:`UserError`. Whatever happens after takeoff,
+    the mission lands (or holds) before this returns, and says so.
+    """
+    import mission as mission_mod
+    import vehicle as vehicle_mod
+
+    nav_path, tlog_path, handler = open_logs(log_dir)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    if root.level > logging.INFO or root.level == logging.NOTSET:
+        root.setLevel(logging.INFO)
+        for other in root.handlers:  # keep the console as quiet as the user asked
+            if other is not handler and other.level == logging.NOTSET:
+                other.setLevel(logging.WARNING)
+    plans: list[Plan] = []
+
+    def plan_from(start_north_m: float, start_east_m: float) -> np.ndarray:
+        try:
+            plan = make_plan(
+                setting, (start_north_m, start_east_m), goal_ne, planner,
+                goal_alt_m=goal_alt_m, seed=seed, snap_start=True,
+            )
+        except UserError as exc:
+            raise PlanRefused(exc) from None
+        log.info(plan_summary(plan))
+        plans.append(plan)
+        return plan.waypoints
+
+    try:
+        print(f"connecting to {connection} ...", file=out, flush=True)
+        try:
+            drone = vehicle_mod.MavlinkVehicle(
+                connection, heartbeat_timeout_s=heartbeat_timeout_s, tlog_path=tlog_path
+            )
+        except vehicle_mod.VehicleError as exc:
+            raise UserError(f"no autopilot answered on {connection}: {exc}") from None
+        try:
+            print(f"connected to a {drone.autopilot.name} autopilot; logs in {nav_path} and {tlog_path}",
+                  file=out, flush=True)
+            mission = mission_mod.Mission(
+                drone, plan_from, altitude_m=setting.altitude_m, map_origin=setting.home,
+                no_path_errors=(PlanRefused,), vehicle_errors=(vehicle_mod.VehicleError,),
+                arm_timeout_s=arm_timeout_s,
+            )
+            try:
+                result = mission.run()
+            except vehicle_mod.VehicleError as exc:  # before arming: e.g. no position to plan from
+                raise UserError(f"the vehicle did not get ready: {exc}") from None
+            except mission_mod.ArmingFailed as exc:
+                raise UserError(str(exc)) from None
+            except mission_mod.NoPathFound as exc:
+                cause = exc.__cause__
+                if isinstance(cause, PlanRefused):
+                    raise UserError(f"{cause.error} (disarmed, never took off)", cause.error.exit_code) from None
+                raise UserError(str(exc), EXIT_NO_PATH) from None
+            except mission_mod.MissionError as exc:
+                print(f"error: mission failed: {exc}", file=sys.stderr)
+                if exc.result is not None and plans and plot:
+                    save_plot(plot, setting, plans[-1], exc.result.track[:, 1:3])
+                return EXIT_FAILED
+            except KeyboardInterrupt:
+                print("interrupted: the vehicle was landed and disarmed first", file=sys.stderr)
+                return EXIT_INTERRUPTED
+        finally:
+            drone.close()
+        print(f"mission complete: {result.summary()}", file=out)
+        if plot and plans:
+            save_plot(plot, setting, plans[-1], result.track[:, 1:3])
+            print(f"plot written to {plot}", file=out)
+        return EXIT_OK
+    finally:
+        root.removeHandler(handler)
+        handler.close()
+
+
+class BundledSim:
+    """The project's simulator (``python -m sim``) as a child process on a free loopback port.
+
+    Used as a context manager: starts the sim, waits until it accepts connections, and on exit stops it with
+    SIGINT (it writes its report) and kills it if it does not stop. The sim's status lines go to ``log_path``.
+    """
+
+    def __init__(self, map_path: str | Path, *, speedup: float, start: Geodetic | None, report_path: Path,
+                 log_path: Path, startup_timeout_s: float = 30.0):
+        self.map_path = Path(map_path).resolve()
+        self.speedup, self.start, self.report_path = speedup, start, Path(report_path).resolve()
+        self.log_path, self.startup_timeout_s = Path(log_path), startup_timeout_s
+        self.port = 0
+        self._proc = None
+
+    def __enter__(self) -> BundledSim:
+        import socket
+        import subprocess
+        import time
+
+        with socket.socket() as probe:  # a free port; the sim binds it a moment later
+            probe.bind(("127.0.0.1", 0))
+            self.port = probe.getsockname()[1]
+        cmd = [sys.executable, "-m", "sim", "--map", str(self.map_path), "--port", str(self.port),
+               "--speedup", f"{self.speedup:g}", "--strict", "--origin", "boot", "--report", str(self.report_path)]
+        if self.start is not None:
+            cmd += ["--start", f"{self.start.lat_deg:.8f},{self.start.lon_deg:.8f}"]
+        log.info("starting the sim: %s", " ".join(cmd))
+        self._log = open(self.log_path, "w", encoding="utf-8")  # noqa: SIM115 (closed in __exit__)
+        self._proc = subprocess.Popen(cmd, cwd=Path(__file__).resolve().parent, stdout=self._log,
+                                      stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        deadline = time.monotonic() + self.startup_timeout_s
+        while time.monotonic() < deadline:
+            if self._proc.poll() is not None:
+                self.__exit__(None, None, None)
+                raise UserError(f"the bundled sim exited at start (code {self._proc.returncode}); see {self.log_path}")
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
+                return self
+            except OSError:
+                time.sleep(0.1)
+        self.__exit__(None, None, None)
+        raise UserError(f"the bundled sim did not start within {self.startup_timeout_s:g} s; see {self.log_path}")
+
+    def __exit__(self, *exc_info) -> None:
+        import signal
+        import subprocess
+
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.send_signal(signal.SIGINT)
+            try:
+                self._proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
+        self._log.close()
+
+    @property
+    def connection(self) -> str:
+        return f"tcp:127.0.0.1:{self.port}"
+
+    def report(self) -> dict | None:
+        try:
+            return json.loads(self.report_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+
+
+def sim_report_summary(report: dict, goal_ne: Sequence[float]) -> str:
+    """One line from the sim's truth: where it landed, collisions, clearance, distance, airborne time."""
+    landed = report.get("landed")
+    where = "not landed"
+    if landed:
+        error_m = math.hypot(landed["north_m"] - goal_ne[0], landed["east_m"] - goal_ne[1])
+        where = f"landed at N {landed['north_m']:.1f} m, E {landed['east_m']:.1f} m ({error_m:.2f} m from the goal)"
+    clearance = report.get("min_clearance_m")
+    clearance_text = "n/a" if clearance is None else f"{clearance:.1f} m"
+    return (
+        f"sim report: {where}, {len(report.get('collisions', []))} collisions, "
+        f"min clearance {clearance_text}, flown {report.get('distance_flown_m', 0):.1f} m, "
+        f"airborne {report.get('airborne_time_s', 0):.1f} s (sim time)"
+    )
+
+
+# ---------------------------------------------------------------------------------------------------------------
 # The command line
 
 
@@ -223,6 +425,14 @@ def run(
     plot: str | None = None,
     json_output: bool = False,
     plan_only: bool = False,
+    connection: str | None = None,
+    host: str = "127.0.0.1",
+    port: int = 5760,
+    sim: bool = False,
+    speedup: float = 5.0,
+    timeout: float = 15.0,
+    arm_timeout: float = 60.0,
+    log_dir: str | Path = "logs",
     out=None,
 ) -> int:
     """Plan (and, unless ``plan_only``, fly) one mission; returns the process exit code.
@@ -237,7 +447,28 @@ def run(
     setting = load_setting(map_path, alt, safety)
     goal_ne = geodetic_to_ned(Geodetic(goal_lat, goal_lon, 0.0), setting.home)[:2]
     if not plan_only:
-        raise UserError("flying is not wired into this build yet; use --plan-only")
+        if start_lat is not None and not sim:
+            raise UserError("--start_lat/--start_lon need --plan-only or --sim: a real vehicle starts where it is")
+        if goal_alt is None:
+            check_endpoint(setting, "goal", *goal_ne)  # refuse a bad goal before connecting, let alone arming
+        options = dict(planner=planner, goal_alt_m=goal_alt, seed=seed, heartbeat_timeout_s=timeout,
+                       arm_timeout_s=arm_timeout, log_dir=log_dir, plot=plot, out=out)
+        if not sim:
+            return fly(setting, goal_ne, connection=connection or f"tcp:{host}:{port}", **options)
+        import time
+
+        Path(log_dir).mkdir(parents=True, exist_ok=True)
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        start = None if start_lat is None else Geodetic(start_lat, start_lon, 0.0)
+        bundled = BundledSim(map_path, speedup=speedup, start=start, report_path=Path(log_dir) / f"sim-report-{stamp}.json",
+                             log_path=Path(log_dir) / f"sim-{stamp}.txt")
+        with bundled:
+            print(f"started the bundled sim on {bundled.connection} at {speedup:g}x speed", file=out, flush=True)
+            code = fly(setting, goal_ne, connection=bundled.connection, **options)
+        report = bundled.report()
+        if report is not None:
+            print(sim_report_summary(report, goal_ne), file=out)
+        return code
     start_ne = (0.0, 0.0)
     if start_lat is not None:
         start_ne = geodetic_to_ned(Geodetic(start_lat, start_lon, 0.0), setting.home)[:2]
@@ -272,6 +503,17 @@ def build_parser() -> argparse.ArgumentParser:
     how.add_argument("--map", dest="map_path", default=str(DEFAULT_MAP), help="colliders.csv map file")
     how.add_argument("--planner", choices=PLANNERS, default="grid", help="planning algorithm")
     how.add_argument("--seed", type=int, default=0, help="random seed for sampling planners")
+    link = parser.add_argument_group("the vehicle")
+    link.add_argument("--connection", help="pymavlink connection string, e.g. tcp:127.0.0.1:5760 or udpin:0.0.0.0:14540 "
+                      "(default: tcp:HOST:PORT)")
+    link.add_argument("--host", default="127.0.0.1", help="autopilot host (classic flag; see --connection)")
+    link.add_argument("--port", type=int, default=5760, help="autopilot TCP port (classic flag)")
+    link.add_argument("--sim", action="store_true", help="start the bundled simulator, fly against it, stop it")
+    link.add_argument("--speedup", type=float, default=5.0, help="with --sim: simulated seconds per wall second")
+    link.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for the autopilot's heartbeat")
+    link.add_argument("--arm-timeout", dest="arm_timeout", type=float, default=60.0,
+                      help="seconds to keep asking to arm while the autopilot is not ready")
+    link.add_argument("--log-dir", dest="log_dir", default="logs", help="where navigation logs and tlogs go")
     output = parser.add_argument_group("output")
     output.add_argument("--plan-only", dest="plan_only", action="store_true", help="plan and print; no drone")
     output.add_argument("--json", dest="json_output", action="store_true", help="print the plan as one JSON object")

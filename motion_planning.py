@@ -485,19 +485,28 @@ def run(
     return EXIT_OK
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Show ``(default: ...)`` only where there is a default worth showing."""
+
+    def _get_help_string(self, action):
+        if action.default is None or action.default is False:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="motion_planning.py",
         description="Plan a collision-free route through the city map and fly it over MAVLink.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=_HelpFormatter,
     )
     where = parser.add_argument_group("where to go")
     where.add_argument("--goal_lat", type=float, help="goal latitude in degrees (required)")
     where.add_argument("--goal_lon", type=float, help="goal longitude in degrees (required)")
     where.add_argument("--alt", type=float, default=5.0, help="flight altitude in metres above the ground")
     where.add_argument("--safety", type=float, default=5.0, help="minimum distance to buildings in metres")
-    where.add_argument("--start_lat", type=float, help="start latitude (plan-only; default: the map's home)")
-    where.add_argument("--start_lon", type=float, help="start longitude (plan-only; default: the map's home)")
+    where.add_argument("--start_lat", type=float, help="start latitude (with --plan-only or --sim; default: the map's home)")
+    where.add_argument("--start_lon", type=float, help="start longitude (with --plan-only or --sim; default: the map's home)")
     where.add_argument("--goal_alt", type=float, help="goal altitude in metres, e.g. a rooftop (grid3d planner)")
     how = parser.add_argument_group("how to plan")
     how.add_argument("--map", dest="map_path", default=str(DEFAULT_MAP), help="colliders.csv map file")

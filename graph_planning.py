@@ -266,6 +266,7 @@ def plan_from_cells(
 ) -> pu.Plan:
     """A 2D ``Plan`` from a route of cells whose consecutive pairs are mutually visible: prune, waypoints."""
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
+    cells = cells[np.concatenate(([True], (np.diff(cells, axis=0) != 0).any(axis=1)))]  # a node on the start
     pruned = pu.prune_line_of_sight(gmap.grid, cells)
     waypoints = pu.waypoints_from_cells(pruned, gmap.north_offset, gmap.east_offset, gmap.altitude_m)
     raw = cells + (gmap.north_offset + 0.5, gmap.east_offset + 0.5)

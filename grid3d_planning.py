@@ -11,8 +11,9 @@ serves every altitude.
 obstacle): 8-connected horizontal moves at one level (no diagonal past a blocked side cell), and vertical moves
 of one level costing ``climb_weight`` or ``descent_weight`` per metre. The cheapest route may climb over a low
 building instead of going around it, and may end on a rooftop (``goal_alt_m`` at least the roof plus the
-margin). A leg is accepted when every cell of its 2D supercover is free at the lower of its two end altitudes,
-so a leg never dips into a grown box; pruning uses the same test.
+margin). A leg is accepted when, over every cell of its 2D supercover, it stays at or above the cell's floor
+(:func:`leg_free`), so a leg never dips into a grown box; pruning uses the same test, so the flown route may
+climb diagonally.
 
 Memory: the search workspace has ``levels * cells`` entries (44 x 921 x 921 on the SF map at 5 m), allocated
 per query with ``np.zeros`` / ``np.empty`` so the operating system maps only the pages the search touches.
@@ -115,17 +116,37 @@ def legs_clear_of_boxes(points: np.ndarray, obstacles: np.ndarray, safety_m: flo
 
 @njit(cache=True)
 def leg_free(floor, i0, j0, z0, i1, j1, z1):
-    """True if every cell of the supercover between cells ``(i0, j0)`` and ``(i1, j1)`` is on the map and free at
-    the lower end altitude ``min(z0, z1)``."""
+    """True if the 3D leg from the centre of cell ``(i0, j0)`` at ``z0`` to the centre of ``(i1, j1)`` at ``z1``
+    stays on the map and, over every cell of its 2D supercover, at or above that cell's floor.
+
+    The leg's altitude is linear along it, so over one cell its lowest point is at the entry or exit of the
+    cell's square (1e-9 m is kept in hand for rounding). A level leg therefore needs its supercover free at its
+    altitude, and a climbing leg may pass low cells early and higher cells later.
+    """
     n, m = floor.shape
     if not (0 <= i0 < n and 0 <= j0 < m and 0 <= i1 < n and 0 <= j1 < m):
         return False
     ni, nj = abs(i1 - i0), abs(j1 - j0)
     cells = np.empty((ni + nj + 1 + 2 * min(ni, nj), 2), np.int64)
     count = grid_search.walk_supercover(np.zeros((1, 1), np.bool_), i0, j0, i1, j1, cells)
-    z = min(z0, z1)
+    low, high = min(z0, z1), max(z0, z1)
+    di, dj, dz = float(i1 - i0), float(j1 - j0), z1 - z0
     for k in range(count):
-        if floor[cells[k, 0], cells[k, 1]] > z:
+        ci, cj = cells[k, 0], cells[k, 1]
+        f = floor[ci, cj]
+        if f <= low:
+            continue
+        if f > high:
+            return False
+        t_lo, t_hi = 0.0, 1.0  # the part of the leg over the closed square of cell (ci, cj)
+        if di != 0.0:
+            ta, tb = (ci - i0 - 0.5) / di, (ci - i0 + 0.5) / di
+            t_lo, t_hi = max(t_lo, min(ta, tb)), min(t_hi, max(ta, tb))
+        if dj != 0.0:
+            ta, tb = (cj - j0 - 0.5) / dj, (cj - j0 + 0.5) / dj
+            t_lo, t_hi = max(t_lo, min(ta, tb)), min(t_hi, max(ta, tb))
+        lowest = z0 + dz * (t_hi if dz < 0 else t_lo) - 1e-9
+        if f > lowest:
             return False
     return True
 

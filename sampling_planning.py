@@ -3,11 +3,13 @@
 Build: draw uniform samples over the map's cells (at cell centres) and altitudes
 ``[altitude_m, altitude_m + altitude_span_m]``, keep those whose cell is free at their altitude (one vectorised
 lookup in ``grid3d_planning.floor_map``, no loop over obstacles) until ``n_samples`` nodes are kept, link each node
-to its ``k`` nearest with scipy's ``cKDTree``, and keep the links that pass ``grid3d_planning.leg_free`` (the
-whole 2D supercover free at the lower end altitude). The roadmap is a networkx graph weighted by 3D length.
+to its ``k`` nearest with scipy's ``cKDTree``, and keep the links that pass ``grid3d_planning.leg_free`` (over
+every cell of its 2D supercover the leg is at or above the cell's floor). The roadmap is a networkx graph
+weighted by 3D length.
 
-Query: link the start and goal to the nearest nodes they can reach by a free leg, A* (networkx, Euclidean
-heuristic), then string-pull with the same leg test. The roadmap is random: a query can fail where a path
+Query: link the start and goal to the nearest nodes they can reach by a free leg (or by a vertical leg and a
+level one, for ends outside the sampled altitude band such as a rooftop), A* (networkx, Euclidean heuristic),
+then string-pull with the same leg test. The roadmap is random: a query can fail where a path
 exists (``NoPathError``); ``bench/bench_planners.py`` reports how often.
 """
 
@@ -102,19 +104,36 @@ class ProbabilisticRoadmap:
         return cls(obstacles, floor, north_offset, east_offset, float(altitude_m), float(safety_m), nodes, graph,
                    tree, extra, edges)
 
-    def _links(self, point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Nodes reachable from ``point`` ``[i, j, z]`` by a free leg among its nearest, and the leg lengths."""
+    def _links(self, point: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Nodes ``point`` ``[i, j, z]`` reaches among its nearest, the link lengths, and each link's via point.
+
+        A link is one free leg (via point NaN) or, failing that, two: vertical in the column of the lower end up
+        to the higher end's altitude, then level (so a rooftop goal above the sampled band is reachable).
+        """
         m = len(self.nodes)
         if m == 0:
-            return np.empty(0, np.int64), np.empty(0)
+            return np.empty(0, np.int64), np.empty(0), np.empty((0, 3))
         for k in _LINK_CANDIDATES:
             k = min(k, m)
-            dist, idx = self.tree.query(point, k=k)
-            idx, dist = np.atleast_1d(idx), np.atleast_1d(dist)
-            ok = g3.legs_free(self.floor, np.repeat(point[None, :], len(idx), axis=0), self.nodes[idx])
+            _, idx = self.tree.query(point, k=k)
+            idx = np.atleast_1d(idx)
+            targets = self.nodes[idx]
+            here = np.repeat(point[None, :], len(idx), axis=0)
+            direct = g3.legs_free(self.floor, here, targets)
+            point_lower = (point[2] <= targets[:, 2])[:, None]
+            via = np.where(point_lower, np.column_stack([here[:, :2], targets[:, 2]]),
+                           np.column_stack([targets[:, :2], here[:, 2]]))
+            lifted = ~direct & g3.legs_free(self.floor, here, via) & g3.legs_free(self.floor, via, targets)
+            ok = direct | lifted
             if ok.any() or k == m:
-                return idx[ok], dist[ok]
-        return np.empty(0, np.int64), np.empty(0)
+                lengths = np.where(
+                    direct,
+                    np.linalg.norm(targets - here, axis=1),
+                    np.linalg.norm(via - here, axis=1) + np.linalg.norm(targets - via, axis=1),
+                )
+                via[direct] = np.nan
+                return idx[ok], lengths[ok], via[ok]
+        return np.empty(0, np.int64), np.empty(0), np.empty((0, 3))
 
     def structure(self) -> dict:
         """Roadmap nodes ``(M, 2)`` and edges ``(E, 2, 2)`` in map metres (north, east), for plots."""
@@ -151,13 +170,23 @@ class ProbabilisticRoadmap:
         positions = {"start": start, "goal": goal}
 
         def position(node):
-            return positions[node] if isinstance(node, str) else self.nodes[node]
+            return self.nodes[node] if isinstance(node, int) else positions[node]
 
         graph = self.graph
-        start_nodes, start_dist = self._links(start)
-        goal_nodes, goal_dist = self._links(goal)
-        graph.add_weighted_edges_from(("start", int(v), d) for v, d in zip(start_nodes, start_dist))
-        graph.add_weighted_edges_from(("goal", int(v), d) for v, d in zip(goal_nodes, goal_dist))
+        added = ["start", "goal"]
+        links = {}
+        for end, point in (("start", start), ("goal", goal)):
+            nodes, lengths, vias = self._links(point)
+            links[end] = len(nodes)
+            for v, length, via in zip(nodes.tolist(), lengths.tolist(), vias):
+                if np.isnan(via[0]):
+                    graph.add_edge(end, v, weight=length)
+                    continue
+                name = (end, v)  # the via point of this link
+                positions[name] = via
+                added.append(name)
+                graph.add_edge(end, name, weight=float(np.linalg.norm(via - point)))
+                graph.add_edge(name, v, weight=float(np.linalg.norm(self.nodes[v] - via)))
         if g3.legs_free(self.floor, start[None, :], goal[None, :])[0]:
             graph.add_edge("start", "goal", weight=float(np.linalg.norm(goal - start)))
         try:
@@ -168,9 +197,10 @@ class ProbabilisticRoadmap:
         except (nx.NetworkXNoPath, nx.NodeNotFound):
             raise pu.NoPathError(start_cell, goal_cell, 0) from None
         finally:
-            graph.remove_nodes_from(["start", "goal"])
+            graph.remove_nodes_from(added)
         search_ms = (time.perf_counter() - t0) * 1e3
         path = np.array([position(v) for v in route])
+        path = path[np.concatenate(([True], (np.diff(path, axis=0) != 0).any(axis=1)))]  # a node on the start
         cost = pu.path_length(path)
         pruned = path[g3.prune_mask_3d(self.floor, path)]
         points = pruned + (self.north_offset + 0.5, self.east_offset + 0.5, 0.0)
@@ -186,7 +216,7 @@ class ProbabilisticRoadmap:
             cost_m=float(cost),
             search_ms=search_ms,
             expanded=len(route),
-            extra={**self.extra, "start_links": int(len(start_nodes)), "goal_links": int(len(goal_nodes))},
+            extra={**self.extra, "start_links": links["start"], "goal_links": links["goal"]},
             structure=self.structure(),
         )
 

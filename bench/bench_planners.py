@@ -278,6 +278,10 @@ def main(argv: list[str] | None = None) -> int:
     if reference:
         print("shortest   " + ", ".join(f"{k} {v:.1f} m" for k, v in reference.items()))
 
+    print()
+    for line in rooftop_rows(obstacles, gmap, queries["medium-3"][0], altitude, safety, args.repeat):
+        print(line)
+
     rng = np.random.default_rng(0)
     prm_rows = prm_failure_rates(
         obstacles, gmap, altitude, safety, (250, 500, 1000, 2000), (0, 1, 2), args.prm_pairs, rng
@@ -294,6 +298,39 @@ def main(argv: list[str] | None = None) -> int:
     for line in acceptance(rows, prm_rows, reference):
         print("  " + line)
     return 0
+
+
+def rooftop_rows(obstacles, gmap, start_cell, altitude, safety, repeat) -> list[str]:
+    """The 3D planners to a rooftop: the building 15-40 m tall, at least 10 x 10 m, nearest the medium-3 goal;
+    the goal altitude is the lowest free one over its centre cell (roof plus margin)."""
+    n, m = gmap.grid.shape
+    near = np.array(gmap.centre_of((int(0.6 * n), int(0.62 * m))))
+    top = obstacles[:, 2] + obstacles[:, 5]
+    roofs = np.flatnonzero((top > 15) & (top < 40) & (obstacles[:, 3] >= 5) & (obstacles[:, 4] >= 5))
+    if not len(roofs):
+        return ["rooftop: no building 15-40 m tall and 10 x 10 m on this map"]
+    k = roofs[np.argmin(np.hypot(*(obstacles[roofs, :2] - near).T))]
+    floor, north_offset, east_offset = g3.floor_map(obstacles, safety)
+    goal = tuple(obstacles[k, :2])
+    goal_alt = float(floor[pu.map_to_cell(goal[0], goal[1], north_offset, east_offset)])
+    start = gmap.centre_of(start_cell)
+    lines = [f"rooftop: from {start} at {altitude} m to the roof of box {k} (top {top[k]:.1f} m) at "
+             f"({goal[0]:.1f}, {goal[1]:.1f}), goal altitude {goal_alt:.1f} m"]
+    for planner in gp.PLANNERS_3D:
+        try:
+            query_ms, result = median_ms(
+                lambda planner=planner: gp.plan(planner, obstacles, start, goal, altitude, safety, goal_alt_m=goal_alt),
+                repeat,
+            )
+        except pu.PlanningError as exc:
+            lines.append(f"  {planner:<8} {type(exc).__name__}: {exc}")
+            continue
+        bad = gp.colliding_legs(result, obstacles, safety)
+        lines.append(f"  {planner:<8} query {query_ms:7.1f} ms, length {result.length_m:7.1f} m, "
+                     f"{len(result.waypoints)} waypoints, ends at {result.waypoints[-1, 2]:.1f} m, "
+                     f"clearance {min_clearance_m(result.waypoints[:, :3], obstacles):.2f} m"
+                     + (f", COLLIDES legs {bad}" if bad else ""))
+    return lines
 
 
 def acceptance(rows, prm_rows, reference) -> list[str]:

@@ -111,6 +111,13 @@ def test_3d_planners_climb_over_the_yard_wall(name):
     assert gp.colliding_legs(result, YARD, 0.5) == []
 
 
+@pytest.mark.parametrize("name", gp.PLANNERS)
+def test_a_start_on_the_goal_is_one_waypoint(name):
+    result = gp.plan(name, WALL, centre(5, 5), centre(5, 5), 5, 1)
+    assert result.waypoints.tolist() == [[5.5, 5.5, 5.0, 0.0]]
+    assert result.length_m == 0.0
+
+
 # --------------------------------------------------------------------------------------------------------------
 # The shared collision check
 
@@ -285,4 +292,5 @@ def test_every_planner_flies_collision_free_legs_on_random_maps(name, example):
     np.testing.assert_allclose(result.waypoints[0, :3], [*centre(*start), 5.0])
     np.testing.assert_allclose(result.waypoints[-1, :3], [*centre(*goal), 5.0])
     assert result.length_m >= math.dist(start, goal) - 1e-9
+    assert (np.diff(result.waypoints[:, :3], axis=0) != 0).any(axis=1).all()  # no repeated waypoint
     assert result.length_m <= result.cost_m + 1e-9  # pruning never lengthens a route; climbing costs >= 1 per m

@@ -67,7 +67,7 @@ def test_a_leg_touching_the_grown_box_is_clear_and_one_cutting_its_corner_is_not
     assert g3.legs_clear_of_boxes(over_the_top, box, 1.0).tolist() == [True]
 
 
-@settings(max_examples=30, deadline=None, derandomize=True)
+@settings(max_examples=150, deadline=None, derandomize=True)
 @given(
     obstacles=random_boxes(),
     safety_m=st.sampled_from([0.0, 1.0, 2.5]),
@@ -79,6 +79,20 @@ def test_a_leg_the_height_map_accepts_clears_every_grown_box(obstacles, safety_m
     if g3.legs_free(floor, a[None, :], b[None, :])[0]:
         points = np.array([a, b]) + (north_offset + 0.5, east_offset + 0.5, 0.0)
         assert g3.legs_clear_of_boxes(points, obstacles, safety_m).tolist() == [True]
+
+
+def test_a_climbing_leg_may_pass_a_block_it_has_risen_above_by_then():
+    # A 10 m block at north 19..21, east 4..6; with a 1 m margin its cells (rows 18..21, columns 3..6) are free
+    # from 11 m. A leg up column 5 from the centre of row 0 (north 0.5) enters row 18 at north 18, i.e. 17.5 / 20
+    # of the way to row 20's centre: at 5 + 7 * 0.875 = 11.125 m when climbing to 12 m (clear), at
+    # 5 + 6.5 * 0.875 = 10.69 m when climbing to 11.5 m (inside the grown box).
+    block = boxes([20.0, 5.0, 5.0, 1.0, 1.0, 5.0])
+    floor, north_offset, east_offset = g3.floor_map(block, 1.0)
+    for top, expected in ((12.0, True), (11.5, False)):
+        a, b = np.array([[0.0, 5.0, 5.0]]), np.array([[20.0, 5.0, top]])
+        assert g3.legs_free(floor, a, b).tolist() == [expected]
+        points = np.vstack([a, b]) + (north_offset + 0.5, east_offset + 0.5, 0.0)
+        assert g3.legs_clear_of_boxes(points, block, 1.0).tolist() == [expected]
 
 
 def test_vertical_legs_keep_the_heading_of_the_horizontal_leg():
@@ -195,6 +209,15 @@ def test_prm_nodes_are_free_at_their_altitude_within_the_band_and_every_edge_is_
     offset = (roadmap.north_offset + 0.5, roadmap.east_offset + 0.5, 0.0)
     for u, v in edges[:: max(1, len(edges) // 100)]:
         assert g3.legs_clear_of_boxes(np.array([nodes[u], nodes[v]]) + offset, CHICANE, 1).tolist() == [True]
+
+
+def test_prm_reaches_a_rooftop_above_its_sampled_band_by_a_vertical_and_a_level_leg():
+    block = boxes([25.0, 25.0, 10.0, 5.0, 5.0, 10.0])  # roof at 20 m, free from 21 m with a 1 m margin
+    roadmap = sp.ProbabilisticRoadmap.build(block, 5, 1, seed=0, n_samples=300, altitude_span_m=0)
+    assert set(roadmap.nodes[:, 2].tolist()) == {5.0}
+    result = roadmap.plan(centre(5, 5), centre(25, 25), goal_alt_m=21)
+    np.testing.assert_allclose(result.waypoints[-1, :3], [25.5, 25.5, 21.0])
+    assert g3.legs_clear_of_boxes(result.waypoints[:, :3], block, 1.0).all()
 
 
 def test_prm_with_too_few_samples_fails_to_connect_and_says_so():

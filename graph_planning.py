@@ -112,16 +112,11 @@ def plan(
             f"planner {name!r} flies at one altitude ({altitude_m} m); goal_alt_m needs grid3d or prm"
         )
     obstacles = np.asarray(obstacles, dtype=np.float64)
-    if name == "grid":
-        gmap, build_ms = structure_for("grid", obstacles, altitude_m, safety_m)
-        result = gmap.plan(start_ne, goal_ne, snap_start=snap_start)
-        return _with_extra(result, {"build_ms": round(build_ms, 3)})
+    options = {"seed": seed} if name == "prm" else {}
+    planner, build_ms = structure_for(name, obstacles, altitude_m, safety_m, **options)
     if name in PLANNERS_3D:
-        options = {"seed": seed} if name == "prm" else {}
-        planner, build_ms = structure_for(name, obstacles, altitude_m, safety_m, **options)
         result = planner.plan(start_ne, goal_ne, goal_alt_m=goal_alt_m, snap_start=snap_start)
     else:
-        planner, build_ms = structure_for(name, obstacles, altitude_m, safety_m)
         result = planner.plan(start_ne, goal_ne, snap_start=snap_start)
     return _with_extra(result, {"build_ms": round(build_ms, 3)})
 

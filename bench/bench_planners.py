@@ -318,10 +318,10 @@ def rooftop_rows(obstacles, gmap, start_cell, altitude, safety, repeat) -> list[
              f"({goal[0]:.1f}, {goal[1]:.1f}), goal altitude {goal_alt:.1f} m"]
     for planner in gp.PLANNERS_3D:
         try:
-            query_ms, result = median_ms(
-                lambda planner=planner: gp.plan(planner, obstacles, start, goal, altitude, safety, goal_alt_m=goal_alt),
-                repeat,
-            )
+            def query(planner=planner):
+                return gp.plan(planner, obstacles, start, goal, altitude, safety, goal_alt_m=goal_alt)
+
+            query_ms, result = median_ms(query, repeat)
         except pu.PlanningError as exc:
             lines.append(f"  {planner:<8} {type(exc).__name__}: {exc}")
             continue

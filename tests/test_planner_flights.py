@@ -1,0 +1,39 @@
+"""Every planner's route, flown end to end through the CLI against the sim in --strict mode: the sim's truth
+must show no collision, a landing at the goal, and the safety margin kept (less the controller's tolerance)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from frames import Geodetic, LocalNED, ned_to_geodetic
+from motion_planning import PLANNERS, main
+from sim import SimConfig, Simulator
+
+ROOT = Path(__file__).resolve().parents[1]
+HOME = Geodetic(37.792480, -122.397450, 0.0)
+GOAL_NE = (-120.3, 130.4)  # ~240 m from home through two street corners of the project map
+SAFETY_M = 5.0
+
+
+@pytest.mark.flight
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_each_planner_flies_to_the_goal_without_collision(planner, tmp_path, capsys):
+    goal = ned_to_geodetic(LocalNED(*GOAL_NE, 0.0), HOME)
+    config = SimConfig(map_path=ROOT / "colliders.csv", port=0, speedup=20, strict=True, origin="boot")
+    with Simulator(config) as sim:
+        code = main([
+            "--connection", f"tcp:127.0.0.1:{sim.port}", "--planner", planner,
+            "--goal_lat", f"{goal.lat_deg:.9f}", "--goal_lon", f"{goal.lon_deg:.9f}",
+            "--alt", "5", "--safety", str(SAFETY_M), "--log-dir", str(tmp_path), "--timeout", "10",
+        ])
+        report = sim.report()
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    assert "mission complete" in out.out
+    assert report["collisions"] == []
+    landed = report["landed"]
+    assert landed is not None and not report["final"]["armed"]
+    assert abs(landed["north_m"] - GOAL_NE[0]) < 1.0 and abs(landed["east_m"] - GOAL_NE[1]) < 1.0
+    assert report["min_clearance_m"] >= SAFETY_M - 1.0

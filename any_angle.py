@@ -8,8 +8,8 @@
 * :func:`roadmap_astar` is A* over a graph in CSR form (``indptr``, ``indices``, ``weights``) with per-query
   virtual start and goal nodes, so the medial-axis and Voronoi roadmaps are built once and queried without
   copying them.
-* The heap (``heap_push`` / ``heap_pop`` on three parallel arrays ``f, g, node``) is shared with
-  ``grid3d_planning``; among equal ``f`` the larger ``g`` pops first.
+* Both use the heap of ``grid_search`` (``heap_push`` / ``heap_pop`` on three parallel arrays ``f, g, node``);
+  among equal ``f`` the larger ``g`` pops first.
 
 Grid convention as in ``planning_utils``: ``bool`` grid, True = blocked, indexed ``grid[north_idx, east_idx]``.
 """
@@ -24,66 +24,6 @@ from numba import njit
 import grid_search
 
 SQRT2 = math.sqrt(2.0)
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Heap
-
-
-@njit(cache=True, inline="always")
-def _less(hf, hg, a, b):
-    return hf[a] < hf[b] or (hf[a] == hf[b] and hg[a] > hg[b])
-
-
-@njit(cache=True, inline="always")
-def _swap(hf, hg, hv, a, b):
-    hf[a], hf[b] = hf[b], hf[a]
-    hg[a], hg[b] = hg[b], hg[a]
-    hv[a], hv[b] = hv[b], hv[a]
-
-
-@njit(cache=True)
-def new_heap():
-    """Empty heap arrays ``(f, g, node)`` with room for 1024 entries (they grow on push)."""
-    return np.empty(1024, np.float64), np.empty(1024, np.float64), np.empty(1024, np.int64)
-
-
-@njit(cache=True)
-def heap_push(hf, hg, hv, size, f, g, v):
-    """Push ``(f, g, v)``; return the (possibly grown) arrays and the new size."""
-    if size == hf.shape[0]:
-        hf = np.concatenate((hf, np.empty(size, np.float64)))
-        hg = np.concatenate((hg, np.empty(size, np.float64)))
-        hv = np.concatenate((hv, np.empty(size, np.int64)))
-    k = size
-    hf[k], hg[k], hv[k] = f, g, v
-    while k > 0:
-        p = (k - 1) // 2
-        if not _less(hf, hg, k, p):
-            break
-        _swap(hf, hg, hv, k, p)
-        k = p
-    return hf, hg, hv, size + 1
-
-
-@njit(cache=True)
-def heap_pop(hf, hg, hv, size):
-    """Remove the root; return its ``(node, f, g)`` and the new size."""
-    v, f, g = hv[0], hf[0], hg[0]
-    size -= 1
-    hf[0], hg[0], hv[0] = hf[size], hg[size], hv[size]
-    k = 0
-    while True:
-        c = 2 * k + 1
-        if c >= size:
-            break
-        if c + 1 < size and _less(hf, hg, c + 1, c):
-            c += 1
-        if not _less(hf, hg, c, k):
-            break
-        _swap(hf, hg, hv, k, c)
-        k = c
-    return v, f, g, size
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -142,13 +82,13 @@ def lazy_theta_star(grid, si, sj, gi, gj):
     start, goal = si * m + sj, gi * m + gj
     di = np.array([1, -1, 0, 0, 1, 1, -1, -1])
     dj = np.array([0, 0, 1, -1, 1, -1, 1, -1])
-    hf, hg, hv = new_heap()
+    hf, hg, hv = grid_search.new_heap()
     g_cost[start] = 0.0
     parent[start] = start
-    hf, hg, hv, hsize = heap_push(hf, hg, hv, 0, math.hypot(si - gi, sj - gj), 0.0, start)
+    hf, hg, hv, hsize = grid_search.heap_push(hf, hg, hv, 0, math.hypot(si - gi, sj - gj), 0.0, start)
     expanded = 0
     while hsize > 0:
-        v, fv, gv, hsize = heap_pop(hf, hg, hv, hsize)
+        v, fv, gv, hsize = grid_search.heap_pop(hf, hg, hv, hsize)
         if closed[v] or gv > g_cost[v]:
             continue
         vi, vj = v // m, v % m
@@ -186,7 +126,7 @@ def lazy_theta_star(grid, si, sj, gi, gj):
             gw = g_cost[p] + math.hypot(wi - pi, wj - pj)
             if gw < g_cost[w]:
                 g_cost[w], parent[w] = gw, p
-                hf, hg, hv, hsize = heap_push(hf, hg, hv, hsize, gw + math.hypot(wi - gi, wj - gj), gw, w)
+                hf, hg, hv, hsize = grid_search.heap_push(hf, hg, hv, hsize, gw + math.hypot(wi - gi, wj - gj), gw, w)
     if not closed[goal]:
         return np.empty((0, 2), np.int64), -1.0, expanded
     count = 1
@@ -222,7 +162,7 @@ def roadmap_astar(indptr, indices, weights, coords, start_nodes, start_costs, go
     g_cost = np.full(size, np.inf)
     parent = np.full(size, -1, np.int64)
     closed = np.zeros(size, np.bool_)
-    hf, hg, hv = new_heap()
+    hf, hg, hv = grid_search.new_heap()
     hsize = 0
     gx, gy = goal_xy[0], goal_xy[1]
     for k in range(start_nodes.shape[0]):
@@ -230,11 +170,11 @@ def roadmap_astar(indptr, indices, weights, coords, start_nodes, start_costs, go
         if start_costs[k] < g_cost[v]:
             g_cost[v], parent[v] = start_costs[k], -1
             h = math.hypot(coords[v, 0] - gx, coords[v, 1] - gy)
-            hf, hg, hv, hsize = heap_push(hf, hg, hv, hsize, start_costs[k] + h, start_costs[k], v)
+            hf, hg, hv, hsize = grid_search.heap_push(hf, hg, hv, hsize, start_costs[k] + h, start_costs[k], v)
     best, best_last = direct_cost, -1
     expanded = 0
     while hsize > 0:
-        v, fv, gv, hsize = heap_pop(hf, hg, hv, hsize)
+        v, fv, gv, hsize = grid_search.heap_pop(hf, hg, hv, hsize)
         if fv >= best:
             break
         if closed[v] or gv > g_cost[v]:
@@ -250,7 +190,7 @@ def roadmap_astar(indptr, indices, weights, coords, start_nodes, start_costs, go
                 continue
             g_cost[w], parent[w] = gw, v
             h = math.hypot(coords[w, 0] - gx, coords[w, 1] - gy)
-            hf, hg, hv, hsize = heap_push(hf, hg, hv, hsize, gw + h, gw, w)
+            hf, hg, hv, hsize = grid_search.heap_push(hf, hg, hv, hsize, gw + h, gw, w)
     if best == np.inf:
         return np.empty(0, np.int64), -1.0, expanded
     count = 0

@@ -29,7 +29,6 @@ from typing import Sequence
 import numpy as np
 from numba import njit
 
-import any_angle
 import grid_search
 import planning_utils as pu
 
@@ -205,15 +204,15 @@ def astar3d(floor, levels, start, goal, climb_weight, descent_weight, state, g_c
     gi, gj, gk = goal[0], goal[1], goal[2]
     s = sk * plane + si * m + sj
     t = gk * plane + gi * m + gj
-    hf, hg, hv = any_angle.new_heap()
+    hf, hg, hv = grid_search.new_heap()
     state[s], g_cost[s], move[s] = 1, 0.0, -1
-    hf, hg, hv, size = any_angle.heap_push(
+    hf, hg, hv, size = grid_search.heap_push(
         hf, hg, hv, 0, _h(si, sj, sk, gi, gj, gk, levels, climb_weight, descent_weight), 0.0, s
     )
     expanded = 0
     found = False
     while size > 0:
-        v, fv, gv, size = any_angle.heap_pop(hf, hg, hv, size)
+        v, fv, gv, size = grid_search.heap_pop(hf, hg, hv, size)
         if state[v] == 2 or gv > g_cost[v]:
             continue
         state[v] = 2
@@ -249,7 +248,7 @@ def astar3d(floor, levels, start, goal, climb_weight, descent_weight, state, g_c
                 continue
             state[w], g_cost[w], move[w] = 1, gw, d
             f = gw + _h(wi, wj, wk, gi, gj, gk, levels, climb_weight, descent_weight)
-            hf, hg, hv, size = any_angle.heap_push(hf, hg, hv, size, f, gw, w)
+            hf, hg, hv, size = grid_search.heap_push(hf, hg, hv, size, f, gw, w)
     if not found:
         return np.empty((0, 3), np.int64), -1.0, expanded
     count = 1

@@ -38,7 +38,7 @@ def _octile(i, j, gi, gj):
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Binary min-heap of (f, g, node) in three parallel arrays, ordered by f then by larger g: among equal f the
+# Binary min-heap of (f, g, node) in three parallel arrays (shared with any_angle and grid3d_planning), ordered by f then by larger g: among equal f the
 # deeper node goes first, which finishes straight runs instead of fanning out. Stale entries are skipped on pop.
 
 
@@ -55,7 +55,7 @@ def _swap(hf, hg, hv, a, b):
 
 
 @njit(cache=True)
-def _heap_push(hf, hg, hv, size, f, g, v):
+def heap_push(hf, hg, hv, size, f, g, v):
     """Push and return the (possibly grown) arrays and the new size."""
     if size == hf.shape[0]:
         hf = np.concatenate((hf, np.empty(size, np.float64)))
@@ -73,9 +73,9 @@ def _heap_push(hf, hg, hv, size, f, g, v):
 
 
 @njit(cache=True)
-def _heap_pop(hf, hg, hv, size):
-    """Remove the root; return its (node, g) and the new size."""
-    v, g = hv[0], hg[0]
+def heap_pop(hf, hg, hv, size):
+    """Remove the root; return its ``(node, f, g)`` and the new size."""
+    v, f, g = hv[0], hf[0], hg[0]
     size -= 1
     hf[0], hg[0], hv[0] = hf[size], hg[size], hv[size]
     k = 0
@@ -89,11 +89,12 @@ def _heap_pop(hf, hg, hv, size):
             break
         _swap(hf, hg, hv, k, c)
         k = c
-    return v, g, size
+    return v, f, g, size
 
 
 @njit(cache=True)
-def _new_heap():
+def new_heap():
+    """Empty heap arrays ``(f, g, node)`` with room for 1024 entries (they grow on push)."""
     return np.empty(1024, np.float64), np.empty(1024, np.float64), np.empty(1024, np.int64)
 
 
@@ -108,12 +109,12 @@ def astar(blocked, width, start, goal, query, g_cost, parent, seen, closed):
     # Neighbour offsets: 4 straight moves, then 4 diagonals as (north step, east step) pairs.
     d_north = np.array([width, -width, 0, 0, width, width, -width, -width])
     d_east = np.array([0, 0, 1, -1, 1, -1, 1, -1])
-    hf, hg, hv = _new_heap()
+    hf, hg, hv = new_heap()
     g_cost[start], parent[start], seen[start] = 0.0, -1, query
-    hf, hg, hv, size = _heap_push(hf, hg, hv, 0, _octile(start // width, start % width, gi, gj), 0.0, start)
+    hf, hg, hv, size = heap_push(hf, hg, hv, 0, _octile(start // width, start % width, gi, gj), 0.0, start)
     expanded = 0
     while size > 0:
-        v, gv, size = _heap_pop(hf, hg, hv, size)
+        v, _, gv, size = heap_pop(hf, hg, hv, size)
         if closed[v] == query or gv > g_cost[v]:
             continue  # a stale duplicate
         closed[v] = query
@@ -133,7 +134,7 @@ def astar(blocked, width, start, goal, query, g_cost, parent, seen, closed):
             if seen[w] == query and gw >= g_cost[w]:
                 continue
             seen[w], g_cost[w], parent[w] = query, gw, v
-            hf, hg, hv, size = _heap_push(hf, hg, hv, size, gw + _octile(w // width, w % width, gi, gj), gw, w)
+            hf, hg, hv, size = heap_push(hf, hg, hv, size, gw + _octile(w // width, w % width, gi, gj), gw, w)
     return -1.0, expanded
 
 
@@ -183,14 +184,14 @@ def jps(blocked, width, start, goal, query, g_cost, parent, seen, closed):
     with :func:`trace_path`.
     """
     gi, gj = goal // width, goal % width
-    hf, hg, hv = _new_heap()
+    hf, hg, hv = new_heap()
     g_cost[start], parent[start], seen[start] = 0.0, -1, query
-    hf, hg, hv, size = _heap_push(hf, hg, hv, 0, _octile(start // width, start % width, gi, gj), 0.0, start)
+    hf, hg, hv, size = heap_push(hf, hg, hv, 0, _octile(start // width, start % width, gi, gj), 0.0, start)
     expanded = 0
     dirs_n = np.empty(8, np.int64)  # candidate directions at this node as (north, east) unit steps
     dirs_e = np.empty(8, np.int64)
     while size > 0:
-        v, gv, size = _heap_pop(hf, hg, hv, size)
+        v, _, gv, size = heap_pop(hf, hg, hv, size)
         if closed[v] == query or gv > g_cost[v]:
             continue
         closed[v] = query
@@ -242,7 +243,7 @@ def jps(blocked, width, start, goal, query, g_cost, parent, seen, closed):
             if seen[w] == query and gw >= g_cost[w]:
                 continue
             seen[w], g_cost[w], parent[w] = query, gw, v
-            hf, hg, hv, size = _heap_push(hf, hg, hv, size, gw + _octile(w // width, w % width, gi, gj), gw, w)
+            hf, hg, hv, size = heap_push(hf, hg, hv, size, gw + _octile(w // width, w % width, gi, gj), gw, w)
     return -1.0, expanded
 
 

@@ -294,8 +294,12 @@ def main(argv: list[str] | None = None) -> int:
         "--size-m", type=float, default=DEFAULT_SIZE_M, help="side of the square city in metres (default: %(default)s)"
     )
     parser.add_argument("-o", "--output", default="colliders.csv", help="output file (default: %(default)s)")
-    parser.add_argument("--lat0", type=float, default=DEFAULT_LAT0_DEG, help="home latitude, deg (default: %(default)s)")
-    parser.add_argument("--lon0", type=float, default=DEFAULT_LON0_DEG, help="home longitude, deg (default: %(default)s)")
+    parser.add_argument(
+        "--lat0", type=float, default=DEFAULT_LAT0_DEG, help="home latitude, deg (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--lon0", type=float, default=DEFAULT_LON0_DEG, help="home longitude, deg (default: %(default)s)"
+    )
     args = parser.parse_args(argv)
     try:
         city = generate_city(size_m=args.size_m, seed=args.seed, lat0_deg=args.lat0, lon0_deg=args.lon0)

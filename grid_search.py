@@ -38,8 +38,9 @@ def _octile(i, j, gi, gj):
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Binary min-heap of (f, g, node) in three parallel arrays (shared with any_angle and grid3d_planning), ordered by f then by larger g: among equal f the
-# deeper node goes first, which finishes straight runs instead of fanning out. Stale entries are skipped on pop.
+# Binary min-heap of (f, g, node) in three parallel arrays (shared with any_angle and grid3d_planning),
+# ordered by f then by larger g: among equal f the deeper node goes first,
+# which finishes straight runs instead of fanning out. Stale entries are skipped on pop.
 
 
 @njit(cache=True, inline="always")
@@ -172,7 +173,8 @@ def _jump_diagonal(blocked, v, step_n, step_e, goal):
             return -1
         if v == goal:
             return v
-        if _jump_straight(blocked, v, step_n, step_e, goal) >= 0 or _jump_straight(blocked, v, step_e, step_n, goal) >= 0:
+        if (_jump_straight(blocked, v, step_n, step_e, goal) >= 0
+                or _jump_straight(blocked, v, step_e, step_n, goal) >= 0):
             return v
 
 

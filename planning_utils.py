@@ -25,9 +25,9 @@ from __future__ import annotations
 import math
 import re
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 
@@ -167,11 +167,11 @@ def _parse_row(path: Path, line_number: int, row: str) -> None:
     fields = row.split(",")
     if len(fields) != 6:
         raise MapFormatError(path, line_number, f"expected 6 columns, got {len(fields)}")
-    for field in fields:
+    for value in fields:
         try:
-            float(field)
+            float(value)
         except ValueError:
-            raise MapFormatError(path, line_number, f"not a number: {field.strip()!r}") from None
+            raise MapFormatError(path, line_number, f"not a number: {value.strip()!r}") from None
 
 
 def read_home(path: str | Path) -> tuple[float, float]:

@@ -16,8 +16,8 @@ exists (``NoPathError``); ``bench/bench_planners.py`` reports how often.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 

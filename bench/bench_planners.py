@@ -252,8 +252,9 @@ def main(argv: list[str] | None = None) -> int:
         for name, (s, t) in queries.items():
             start, goal = gmap.centre_of(s), gmap.centre_of(t)
             try:
-                query_ms, result = median_ms(lambda: gp.plan(planner, obstacles, start, goal, altitude, safety),
-                                             args.repeat)
+                query_ms, result = median_ms(
+                    lambda p=planner, a=start, b=goal: gp.plan(p, obstacles, a, b, altitude, safety), args.repeat
+                )
             except pu.PlanningError as exc:
                 rows.append((planner, name, build_ms, float("nan"), float("nan"), float("nan"), 0, float("nan"),
                              type(exc).__name__))

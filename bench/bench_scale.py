@@ -68,7 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     n, m = grid.shape
     start = nearest_free(grid, (int(0.02 * n), int(0.02 * m)))
     goal = nearest_free(grid, (int(0.98 * n), int(0.98 * m)))
-    print(f"query: start {start} -> goal {goal} (straight line {np.hypot(goal[0] - start[0], goal[1] - start[1]):.0f} cells)")
+    straight = np.hypot(goal[0] - start[0], goal[1] - start[1])
+    print(f"query: start {start} -> goal {goal} (straight line {straight:.0f} cells)")
 
     t0 = time.perf_counter()
     planner = pu.GridPlanner(grid) if args.method is None else pu.GridPlanner(grid, method=args.method)

@@ -6,11 +6,10 @@ worked out by hand here, independently of planning_utils.
 
 import math
 
-import numpy as np
-from scipy.sparse.csgraph import dijkstra
-
 import bench_grid
 import classic_astar
+import numpy as np
+from scipy.sparse.csgraph import dijkstra
 
 # Row 0 is south. '#' blocked. Going from (0, 0) to (1, 1): the diagonal squeezes between (0, 1) and (1, 0).
 SQUEEZE = np.array([[c == "#" for c in row] for row in [".#.", "#..", "..."]])

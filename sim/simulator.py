@@ -15,11 +15,11 @@ import threading
 import time
 from collections.abc import Callable
 
+from . import telemetry as tm
 from .autopilot import Autopilot
 from .config import SimConfig
 from .report import FlightRecorder, write_report
 from .server import TcpLink, TcpServer, TlogLink
-from . import telemetry as tm
 from .telemetry import default_intervals
 from .world import CityMap
 

@@ -210,7 +210,6 @@ def visibility_reference(grid: np.ndarray, start, goal) -> float:
     """Shortest cell-centre polyline with supercover-free legs whose turns are at free cells next to blocked
     ones (Dijkstra over their visibility graph, built with planning_utils.line_of_sight)."""
     import networkx as nx
-
     from scipy import ndimage
 
     near_blocked = ndimage.binary_dilation(grid, structure=np.ones((3, 3), bool)) & ~grid

@@ -103,7 +103,7 @@ def test_params_ping_intervals(sim_start, sim_connect):
     c.wait_for("HEARTBEAT")
     since = c.mark()
     c.send(M.MAVLink_param_request_list_message(1, 1))
-    values = {c.wait_for("PARAM_VALUE", lambda m: m.param_id == name, since=since).param_id
+    values = {c.wait_for("PARAM_VALUE", lambda m, name=name: m.param_id == name, since=since).param_id
               for name in ("MIS_TAKEOFF_ALT", "RTL_RETURN_ALT", "COM_OF_LOSS_T")}
     assert len(values) == 3
     since = c.mark()

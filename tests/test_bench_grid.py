@@ -1,15 +1,20 @@
-"""Checks of the benchmark's own yardsticks on hand-drawn maps (run with ``pytest bench``).
+"""Checks of the benchmark's own yardsticks on hand-drawn maps.
 
 The reference and the path checker decide what "optimal" and "valid" mean in the table, so they get answers
 worked out by hand here, independently of planning_utils.
 """
 
 import math
+import sys
+from pathlib import Path
 
-import bench_grid
-import classic_astar
 import numpy as np
 from scipy.sparse.csgraph import dijkstra
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+
+import bench_grid  # noqa: E402
+import classic_astar  # noqa: E402
 
 # Row 0 is south. '#' blocked. Going from (0, 0) to (1, 1): the diagonal squeezes between (0, 1) and (1, 0).
 SQUEEZE = np.array([[c == "#" for c in row] for row in [".#.", "#..", "..."]])

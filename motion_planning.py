@@ -18,9 +18,9 @@ import json
 import logging
 import math
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -241,6 +241,7 @@ def fly(
     seed: int,
     heartbeat_timeout_s: float,
     arm_timeout_s: float,
+    link_lost_timeout_s: float = 30.0,
     log_dir: str | Path,
     plot: str | None,
     out,
@@ -255,6 +256,7 @@ def fly(
 
     nav_path, tlog_path, handler = open_logs(log_dir)
     root = logging.getLogger()
+    saved_levels = [(root, root.level)] + [(h, h.level) for h in root.handlers]  # restored on the way out
     root.addHandler(handler)
     if root.level > logging.INFO or root.level == logging.NOTSET:
         root.setLevel(logging.INFO)
@@ -289,7 +291,7 @@ def fly(
             mission = mission_mod.Mission(
                 drone, plan_from, altitude_m=setting.altitude_m, map_origin=setting.home,
                 no_path_errors=(PlanRefused,), vehicle_errors=(vehicle_mod.VehicleError,),
-                arm_timeout_s=arm_timeout_s,
+                arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s,
             )
             try:
                 result = mission.run()
@@ -308,7 +310,7 @@ def fly(
                     save_plot(plot, setting, plans[-1], exc.result.track[:, 1:3])
                 return EXIT_FAILED
             except KeyboardInterrupt:
-                print("interrupted: the vehicle was landed and disarmed first", file=sys.stderr)
+                print(f"interrupted: {interrupted_outcome(mission)}", file=sys.stderr)
                 return EXIT_INTERRUPTED
         finally:
             drone.close()
@@ -320,6 +322,21 @@ def fly(
     finally:
         root.removeHandler(handler)
         handler.close()
+        for logger_or_handler, level in saved_levels:
+            logger_or_handler.setLevel(level)
+
+
+def interrupted_outcome(mission) -> str:
+    """What the mission did with the vehicle after Ctrl-C, from its state and history (not assumed)."""
+    import mission as mission_mod
+
+    state, history = mission.state, mission.result.history
+    if state is mission_mod.MissionState.MANUAL:
+        if any(new is mission_mod.MissionState.TAKEOFF for _, _, new in history):
+            return "the vehicle was landed and disarmed first"
+        return "the vehicle is disarmed on the ground; it never took off" if history else "the vehicle was never armed"
+    return (f"the mission stopped in state {state.name}: the vehicle may not be on the ground and disarmed; "
+            "the autopilot's failsafe owns it")
 
 
 class BundledSim:
@@ -351,8 +368,10 @@ class BundledSim:
             cmd += ["--start", f"{self.start.lat_deg:.8f},{self.start.lon_deg:.8f}"]
         log.info("starting the sim: %s", " ".join(cmd))
         self._log = open(self.log_path, "w", encoding="utf-8")  # noqa: SIM115 (closed in __exit__)
+        # A session of its own: a terminal's Ctrl-C goes to the whole foreground process group, and the sim must
+        # keep flying while we land; __exit__ stops it once we are done.
         self._proc = subprocess.Popen(cmd, cwd=Path(__file__).resolve().parent, stdout=self._log,
-                                      stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+                                      stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
         deadline = time.monotonic() + self.startup_timeout_s
         while time.monotonic() < deadline:
             if self._proc.poll() is not None:
@@ -432,6 +451,7 @@ def run(
     speedup: float = 5.0,
     timeout: float = 15.0,
     arm_timeout: float = 60.0,
+    link_timeout: float = 30.0,
     log_dir: str | Path = "logs",
     out=None,
 ) -> int:
@@ -452,7 +472,8 @@ def run(
         if goal_alt is None:
             check_endpoint(setting, "goal", *goal_ne)  # refuse a bad goal before connecting, let alone arming
         options = dict(planner=planner, goal_alt_m=goal_alt, seed=seed, heartbeat_timeout_s=timeout,
-                       arm_timeout_s=arm_timeout, log_dir=log_dir, plot=plot, out=out)
+                       arm_timeout_s=arm_timeout, link_lost_timeout_s=link_timeout, log_dir=log_dir, plot=plot,
+                       out=out)
         if not sim:
             return fly(setting, goal_ne, connection=connection or f"tcp:{host}:{port}", **options)
         import time
@@ -460,7 +481,8 @@ def run(
         Path(log_dir).mkdir(parents=True, exist_ok=True)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         start = None if start_lat is None else Geodetic(start_lat, start_lon, 0.0)
-        bundled = BundledSim(map_path, speedup=speedup, start=start, report_path=Path(log_dir) / f"sim-report-{stamp}.json",
+        bundled = BundledSim(map_path, speedup=speedup, start=start,
+                             report_path=Path(log_dir) / f"sim-report-{stamp}.json",
                              log_path=Path(log_dir) / f"sim-{stamp}.txt")
         with bundled:
             print(f"started the bundled sim on {bundled.connection} at {speedup:g}x speed", file=out, flush=True)
@@ -505,16 +527,18 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--goal_lon", type=float, help="goal longitude in degrees (required)")
     where.add_argument("--alt", type=float, default=5.0, help="flight altitude in metres above the ground")
     where.add_argument("--safety", type=float, default=5.0, help="minimum distance to buildings in metres")
-    where.add_argument("--start_lat", type=float, help="start latitude (with --plan-only or --sim; default: the map's home)")
-    where.add_argument("--start_lon", type=float, help="start longitude (with --plan-only or --sim; default: the map's home)")
+    where.add_argument("--start_lat", type=float,
+                       help="start latitude (with --plan-only or --sim; default: the map's home)")
+    where.add_argument("--start_lon", type=float,
+                       help="start longitude (with --plan-only or --sim; default: the map's home)")
     where.add_argument("--goal_alt", type=float, help="goal altitude in metres, e.g. a rooftop (grid3d planner)")
     how = parser.add_argument_group("how to plan")
     how.add_argument("--map", dest="map_path", default=str(DEFAULT_MAP), help="colliders.csv map file")
     how.add_argument("--planner", choices=PLANNERS, default="grid", help="planning algorithm")
     how.add_argument("--seed", type=int, default=0, help="random seed for sampling planners")
     link = parser.add_argument_group("the vehicle")
-    link.add_argument("--connection", help="pymavlink connection string, e.g. tcp:127.0.0.1:5760 or udpin:0.0.0.0:14540 "
-                      "(default: tcp:HOST:PORT)")
+    link.add_argument("--connection", help="pymavlink connection string, e.g. tcp:127.0.0.1:5760 or "
+                      "udpin:0.0.0.0:14540 (default: tcp:HOST:PORT)")
     link.add_argument("--host", default="127.0.0.1", help="autopilot host (classic flag; see --connection)")
     link.add_argument("--port", type=int, default=5760, help="autopilot TCP port (classic flag)")
     link.add_argument("--sim", action="store_true", help="start the bundled simulator, fly against it, stop it")
@@ -522,6 +546,9 @@ def build_parser() -> argparse.ArgumentParser:
     link.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for the autopilot's heartbeat")
     link.add_argument("--arm-timeout", dest="arm_timeout", type=float, default=60.0,
                       help="seconds to keep asking to arm while the autopilot is not ready")
+    link.add_argument("--link-timeout", dest="link_timeout", type=float, default=30.0,
+                      help="seconds to wait for a link lost in flight to come back before giving up "
+                      "(the autopilot's own failsafe then owns the vehicle)")
     link.add_argument("--log-dir", dest="log_dir", default="logs", help="where navigation logs and tlogs go")
     output = parser.add_argument_group("output")
     output.add_argument("--plan-only", dest="plan_only", action="store_true", help="plan and print; no drone")

@@ -1,0 +1,428 @@
+"""The flying command line, end to end: ``motion_planning.main([...])`` against ``sim`` in ``--strict`` mode.
+
+Every test runs the real CLI path (argument parsing, map loading, connecting over TCP on 127.0.0.1, arming,
+planning, flying, landing, logging) against an in-process :class:`sim.Simulator` on an ephemeral port, and judges
+the outcome from the sim's report (the truth), not from what the client prints about itself. Landing errors are
+measured between the sim's touchdown lat/lon and the goal lat/lon with a local WGS84 formula written here, so
+a bug in ``frames`` cannot cancel itself out.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import socket
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+import motion_planning as mp
+from sim import FaultConfig, SimConfig, Simulator, write_colliders
+
+pytestmark = pytest.mark.flight
+
+LAT0, LON0 = 37.792480, -122.397450  # colliders.csv's home
+WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
+ALT_M, SAFETY_M = 5.0, 5.0
+SPEEDUP = 20.0
+
+# Goals on the project map, checked to be free at 5 m with a 5 m margin (N, E metres from home).
+GOAL_NEAR = (129.5, -57.5)  # ~170 m from home, four legs round the blocks
+GOAL_SHORT = (99.5, 50.5)  # ~120 m, two legs
+GOAL_FAR = (420.5, 273.5)  # ~600 m
+START_AWAY = (20.0, 80.0)  # a street corner away from home, free at ground level
+
+
+def _radii_m(lat_deg: float) -> tuple[float, float]:
+    """WGS84 meridional and prime-vertical radii of curvature at ``lat_deg`` (m)."""
+    e2 = WGS84_F * (2 - WGS84_F)
+    w = 1 - e2 * math.sin(math.radians(lat_deg)) ** 2
+    return WGS84_A_M * (1 - e2) / w**1.5, WGS84_A_M / math.sqrt(w)
+
+
+def to_latlon(north_m: float, east_m: float, lat0: float = LAT0, lon0: float = LON0) -> tuple[float, float]:
+    """Local tangent-plane offset on the WGS84 ellipsoid (within cm over 600 m), independent of ``frames``.
+
+    (A sphere of radius 6378137 m would be 0.3 % short in latitude here: 1.3 m over 420 m.)
+    """
+    meridional, normal = _radii_m(lat0)
+    lat = lat0 + math.degrees(north_m / meridional)
+    lon = lon0 + math.degrees(east_m / (normal * math.cos(math.radians(lat0))))
+    return lat, lon
+
+
+def distance_m(lat_a: float, lon_a: float, lat_b: float, lon_b: float) -> float:
+    """Horizontal distance (m) between two nearby points, same approximation as :func:`to_latlon`."""
+    meridional, normal = _radii_m(lat_a)
+    north = math.radians(lat_b - lat_a) * meridional
+    east = math.radians(lon_b - lon_a) * normal * math.cos(math.radians(lat_a))
+    return math.hypot(north, east)
+
+
+def goal_args(north_m: float, east_m: float) -> list[str]:
+    lat, lon = to_latlon(north_m, east_m)
+    return ["--goal_lat", f"{lat:.9f}", "--goal_lon", f"{lon:.9f}"]
+
+
+# --------------------------------------------------------------------------------------------- fixtures
+@pytest.fixture(autouse=True)
+def watchdog():
+    """Fail a test that runs longer than its budget (default 30 s; ``watchdog(s)`` changes it).
+
+    pytest-timeout is not a dependency, so SIGALRM raises pytest's Failed in the main thread.
+    """
+
+    if not hasattr(signal, "SIGALRM") or threading.current_thread() is not threading.main_thread():
+        yield lambda seconds: None  # no alarm here: the flights' own timeouts still bound every wait
+        return
+
+    def expired(signum, frame):
+        pytest.fail("flight test exceeded its wall-clock budget")
+
+    previous = signal.signal(signal.SIGALRM, expired)
+
+    def arm(seconds: float) -> None:
+        signal.setitimer(signal.ITIMER_REAL, seconds)
+
+    arm(30.0)
+    try:
+        yield arm
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+@pytest.fixture
+def start_sim():
+    """``start_sim(**SimConfig fields) -> Simulator``: strict, ephemeral port, stopped (and checked) at teardown."""
+    sims: list[Simulator] = []
+
+    def start(**kwargs) -> Simulator:
+        kwargs.setdefault("port", 0)
+        kwargs.setdefault("host", "127.0.0.1")
+        kwargs.setdefault("strict", True)
+        kwargs.setdefault("speedup", SPEEDUP)
+        kwargs.setdefault("map_path", mp.DEFAULT_MAP)
+        sim = Simulator(SimConfig(**kwargs)).start()
+        sims.append(sim)
+        return sim
+
+    yield start
+    for sim in sims:
+        sim.stop()
+        assert sim.error is None, sim.error
+
+
+def fly(sim: Simulator, tmp_path: Path, *args: str, goal=GOAL_NEAR) -> int:
+    """Run the CLI against ``sim`` with the flight options every test shares; return its exit code."""
+    argv = [*goal_args(*goal), "--alt", f"{ALT_M:g}", "--safety", f"{SAFETY_M:g}",
+            "--connection", f"tcp:127.0.0.1:{sim.port}", "--timeout", "5", "--log-dir", str(tmp_path / "logs"),
+            *args]
+    return mp.main(argv)
+
+
+def arm_commands(report: dict) -> list[dict]:
+    return [c for c in report["commands"] if c["name"] == "MAV_CMD_COMPONENT_ARM_DISARM" and c["params"][0] >= 0.5]
+
+
+def assert_down_and_disarmed(report: dict) -> None:
+    final = report["final"]
+    assert not final["armed"] and final["on_ground"] and not final["crashed"]
+    assert not report["collisions"]
+
+
+def assert_never_armed(report: dict) -> None:
+    assert not arm_commands(report)
+    assert report["armed_time_s"] == 0 and report["airborne_time_s"] == 0
+    assert not report["final"]["armed"] and report["final"]["on_ground"]
+
+
+def one_line(text: str) -> str:
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert len(lines) == 1, lines
+    return lines[0]
+
+
+# ----------------------------------------------------------------------------------------- good flights
+@pytest.mark.parametrize("autopilot, start, origin, goal", [
+    pytest.param("px4", None, "home", GOAL_NEAR, id="px4-home"),
+    pytest.param("px4", START_AWAY, "boot", GOAL_NEAR, id="px4-away-boot-origin"),
+    pytest.param("ardupilot", None, "home", GOAL_SHORT, id="ardupilot"),
+])
+def test_mission_lands_at_the_goal(start_sim, tmp_path, capsys, autopilot, start, origin, goal):
+    sim = start_sim(autopilot=autopilot, start=None if start is None else to_latlon(*start), origin=origin)
+    code = fly(sim, tmp_path, goal=goal)
+    report = sim.stop()
+    out, err = capsys.readouterr()
+    assert code == mp.EXIT_OK, err
+    summary = [line for line in out.splitlines() if line.startswith("mission complete:")]
+    assert len(summary) == 1 and "landing error" in summary[0]
+    assert err == ""
+    # truth
+    if start is not None:
+        assert distance_m(report["start"]["lat_deg"], report["start"]["lon_deg"], *to_latlon(*start)) < 0.1
+    landed = report["landed"]
+    error_m = distance_m(landed["lat_deg"], landed["lon_deg"], *to_latlon(*goal))
+    assert error_m < 1.0
+    assert not report["collisions"] and not report["crashed"]
+    assert report["min_clearance_m"] >= SAFETY_M - 1.0
+    assert report["max_height_above_home_m"] == pytest.approx(ALT_M, abs=1.0)
+    assert_down_and_disarmed(report)
+    print(f"\n{autopilot}/{origin}: landing error {error_m:.2f} m, min clearance {report['min_clearance_m']:.2f} m, "
+          f"flown {report['distance_flown_m']:.1f} m, airborne {report['airborne_time_s']:.1f} s")
+    # logs: a readable navigation log and a standard tlog
+    logs = tmp_path / "logs"
+    (nav,), (tlog,) = logs.glob("navlog-*.txt"), logs.glob("flight-*.tlog")
+    assert nav.stat().st_size > 0 and tlog.stat().st_size > 0
+    assert "takeoff done" in nav.read_text(encoding="utf-8")
+    from pymavlink import mavutil
+
+    tl = mavutil.mavlink_connection(str(tlog))
+    try:
+        kinds = set()
+        while (msg := tl.recv_match()) is not None:
+            kinds.add(msg.get_type())
+    finally:
+        tl.close()
+    assert {"HEARTBEAT", "GLOBAL_POSITION_INT", "COMMAND_ACK", "SET_POSITION_TARGET_LOCAL_NED"} <= kinds
+
+
+def test_600_m_mission_time(start_sim, tmp_path, capsys, watchdog):
+    """Flight time within 1.3x of flown length / cruise speed + takeoff + landing.
+
+    The mission level (tests/test_mission.py) checks this with a hand-made plan; here the CLI plans it on the
+    project map. The ideal time uses the sim's PX4 limits (sim/telemetry.py PX4_PARAMS, applied in
+    sim/autopilot.py): cruise MPC_XY_VEL_MAX 10 m/s, climb MPC_Z_VEL_MAX_UP 3 m/s, landing MPC_LAND_SPEED 0.7 m/s.
+    The vertical metres (ALT_M up, ALT_M down) are taken off the sim's 3D ``distance_flown_m`` before dividing
+    by the cruise speed; ``airborne_time_s`` is simulated time, so the speedup does not enter.
+    """
+    watchdog(45.0)
+    cruise_m_s, climb_m_s, land_m_s = 10.0, 3.0, 0.7
+    # 5x, not 20x: the client's waypoint checks run on the wall clock (20 Hz polls, 10 Hz telemetry), so at 20x
+    # each waypoint can cost up to ~2 s of simulated time in detection lag alone (measured ratio ~1.35 at 20x,
+    # ~1.31 at 10x, ~1.21 at 5x)
+    sim = start_sim(speedup=5.0)
+    code = fly(sim, tmp_path, goal=GOAL_FAR)
+    report = sim.stop()
+    assert code == mp.EXIT_OK, capsys.readouterr().err
+    horizontal_m = report["distance_flown_m"] - 2 * ALT_M
+    ideal_s = horizontal_m / cruise_m_s + ALT_M / climb_m_s + ALT_M / land_m_s
+    ratio = report["airborne_time_s"] / ideal_s
+    print(f"\n600 m mission: flown {report['distance_flown_m']:.1f} m, airborne {report['airborne_time_s']:.1f} s, "
+          f"ideal {ideal_s:.1f} s, ratio {ratio:.3f}")
+    assert horizontal_m >= 580.0
+    assert ratio <= 1.3
+    assert not report["collisions"]
+    assert_down_and_disarmed(report)
+
+
+# ------------------------------------------------------------------------------------ small maps for failures
+# Posts 2 m tall (below the 5 m flight altitude) mark the map's extent; walls and blocks are 20 m tall.
+POSTS = [(-20.0, -30.0, 1.0, 1.0, 1.0, 1.0), (140.0, 30.0, 1.0, 1.0, 1.0, 1.0)]
+
+
+@pytest.fixture
+def block_map(tmp_path) -> Path:
+    """One block N 45..75, E -15..15 between home and GOAL_BEHIND_BLOCK: a ~130 m route round a corner."""
+    return write_colliders(tmp_path / "block.csv", LAT0, LON0, [(60.0, 0.0, 10.0, 15.0, 15.0, 10.0), *POSTS])
+
+
+GOAL_BEHIND_BLOCK = (120.0, 0.0)
+
+
+@pytest.fixture
+def walled_goal_map(tmp_path) -> Path:
+    """Four walls round N 28..52, E -12..12: the goal N 40 E 0 inside is free (even with a 5 m margin), unreachable."""
+    walls = [(28.0, 0.0, 10.0, 1.0, 13.0, 10.0), (52.0, 0.0, 10.0, 1.0, 13.0, 10.0),
+             (40.0, -12.0, 10.0, 13.0, 1.0, 10.0), (40.0, 12.0, 10.0, 13.0, 1.0, 10.0)]
+    return write_colliders(tmp_path / "walled.csv", LAT0, LON0, [*walls, *POSTS])
+
+
+# ------------------------------------------------------------------------------------------ failure paths
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("listening", [False, True], ids=["closed-port", "silent-listener"])
+def test_no_autopilot_answering(tmp_path, capsys, listening):
+    timeout_s = 2.0
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        port = server.getsockname()[1]
+        if listening:
+            server.listen()  # accepts the TCP connection, never sends a heartbeat
+        else:
+            server.close()
+        t0 = time.monotonic()
+        code = mp.main([*goal_args(*GOAL_SHORT), "--connection", f"tcp:127.0.0.1:{port}", "--timeout",
+                        f"{timeout_s:g}", "--log-dir", str(tmp_path / "logs")])
+        elapsed_s = time.monotonic() - t0
+    err = one_line(capsys.readouterr().err)
+    assert code == mp.EXIT_BAD_INPUT
+    assert err.startswith(f"error: no autopilot answered on tcp:127.0.0.1:{port}") and "heartbeat" in err
+    assert elapsed_s < timeout_s + 3.0  # map loading included
+
+
+@pytest.mark.parametrize("goal, what", [
+    ((150.0, -60.0), "is inside a building at 5 m altitude; nearest free point: "),
+    ((-450.0, -400.0), "is off the map, which spans"),
+], ids=["inside-a-building", "off-the-map"])
+def test_bad_goal_is_refused_before_arming(start_sim, tmp_path, capsys, goal, what):
+    sim = start_sim()
+    code = fly(sim, tmp_path, goal=goal)
+    report = sim.stop()
+    err = one_line(capsys.readouterr().err)
+    assert code == mp.EXIT_BAD_INPUT
+    assert err.startswith("error: goal ") and what in err
+    assert not report["commands"]  # refused before connecting, let alone arming
+    assert_never_armed(report)
+
+
+def test_no_path_disarms_and_never_takes_off(start_sim, tmp_path, capsys, walled_goal_map):
+    sim = start_sim(map_path=walled_goal_map)
+    code = fly(sim, tmp_path, "--map", str(walled_goal_map), goal=(40.0, 0.0))
+    report = sim.stop()
+    err = one_line(capsys.readouterr().err)
+    assert code == mp.EXIT_NO_PATH
+    assert err.startswith("error: no path from ") and "never took off" in err
+    assert [c["result_name"] for c in arm_commands(report)] == ["MAV_RESULT_ACCEPTED"]  # armed, then planned
+    assert report["armed_time_s"] > 0
+    assert report["airborne_time_s"] == 0 and report["max_altitude_m"] is None and not report["landings"]
+    assert_down_and_disarmed(report)
+
+
+def test_arm_refused_until_the_timeout_quotes_the_autopilot(start_sim, tmp_path, capsys, block_map):
+    sim = start_sim(map_path=block_map, faults=FaultConfig(deny_arm_count=1000))
+    t0 = time.monotonic()
+    code = fly(sim, tmp_path, "--map", str(block_map), "--arm-timeout", "3", goal=GOAL_BEHIND_BLOCK)
+    elapsed_s = time.monotonic() - t0
+    report = sim.stop()
+    err = one_line(capsys.readouterr().err)
+    assert code == mp.EXIT_BAD_INPUT
+    assert err.startswith("error: the autopilot refused to arm for 3 s")
+    assert "TEMPORARILY_REJECTED" in err and "fault injection: arming denied" in err  # the sim's STATUSTEXT
+    refusals = arm_commands(report)
+    assert len(refusals) >= 2 and {c["result_name"] for c in refusals} == {"MAV_RESULT_TEMPORARILY_REJECTED"}
+    assert report["armed_time_s"] == 0 and report["final"]["on_ground"] and not report["final"]["armed"]
+    assert elapsed_s < 3.0 + 5.0
+
+
+def test_arm_refused_twice_then_accepted_flies(start_sim, tmp_path, capsys, block_map):
+    sim = start_sim(map_path=block_map, faults=FaultConfig(deny_arm_count=2))
+    code = fly(sim, tmp_path, "--map", str(block_map), "--arm-timeout", "10", goal=GOAL_BEHIND_BLOCK)
+    report = sim.stop()
+    out, err = capsys.readouterr()
+    assert code == mp.EXIT_OK, err
+    assert one_line("\n".join(x for x in out.splitlines() if x.startswith("mission complete:")))
+    assert [c["result_name"] for c in arm_commands(report)] == ["MAV_RESULT_TEMPORARILY_REJECTED"] * 2 + [
+        "MAV_RESULT_ACCEPTED"]
+    landed = report["landed"]
+    assert distance_m(landed["lat_deg"], landed["lon_deg"], *to_latlon(*GOAL_BEHIND_BLOCK)) < 1.0
+    assert report["min_clearance_m"] >= SAFETY_M - 1.0
+    assert_down_and_disarmed(report)
+
+
+def test_link_lost_in_flight_gives_up_after_link_timeout(start_sim, tmp_path, capsys, block_map):
+    # At 3x the ~130 m flight takes ~10 s of wall time; it starts ~1.5 s after the sim. The link goes silent 4 s
+    # (wall) after the sim starts, for good: the vehicle notices after 3 s without heartbeats, the mission waits
+    # --link-timeout 2 s more, then reports. The strict sim's own failsafe (offboard loss -> hold) owns the vehicle.
+    sim = start_sim(map_path=block_map, speedup=3.0, faults=FaultConfig(outage_start_s=4.0, outage_duration_s=600.0))
+    t0 = time.monotonic()
+    code = fly(sim, tmp_path, "--map", str(block_map), "--link-timeout", "2", goal=GOAL_BEHIND_BLOCK)
+    elapsed_s = time.monotonic() - t0
+    report = sim.stop()
+    err = one_line(capsys.readouterr().err)
+    assert code == mp.EXIT_FAILED
+    assert err.startswith("error: mission failed: link lost in state ") and "for 2 s" in err and "failsafe" in err
+    assert elapsed_s < 4.0 + 3.0 + 2.0 + 3.0
+    # truth: it was flying when the link went, the autopilot's failsafe holds it, nothing was hit
+    assert report["airborne_time_s"] > 0 and not report["final"]["on_ground"]
+    assert any(e["kind"] == "failsafe" for e in report["events"]) and report["final"]["mode"] != "OFFBOARD"
+    assert report["final"]["armed"] and not report["collisions"]
+
+
+def test_ctrl_c_in_flight_lands_then_exits_130(start_sim, tmp_path, capsys, block_map, monkeypatch):
+    import vehicle
+
+    real_goto = vehicle.MavlinkVehicle.goto_local
+    calls = []
+
+    def goto_then_ctrl_c(self, *args, **kwargs):  # PX4: 1 = takeoff setpoint, 2 = waypoint 0, 3 = waypoint 1
+        calls.append(args)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real_goto(self, *args, **kwargs)
+
+    monkeypatch.setattr(vehicle.MavlinkVehicle, "goto_local", goto_then_ctrl_c)
+    sim = start_sim(map_path=block_map)
+    code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)
+    report = sim.stop()
+    out, err = capsys.readouterr()
+    assert code == mp.EXIT_INTERRUPTED
+    assert one_line(err) == "interrupted: the vehicle was landed and disarmed first"
+    assert "mission complete" not in out and len(calls) == 3
+    # truth: it flew, then landed (short of the goal) and disarmed
+    assert report["airborne_time_s"] > 0 and report["max_height_above_home_m"] > ALT_M - 1.0
+    assert len(report["landings"]) == 1
+    landed = report["landed"]
+    assert distance_m(landed["lat_deg"], landed["lon_deg"], *to_latlon(*GOAL_BEHIND_BLOCK)) > 50.0
+    # landing was commanded after takeoff, and the vehicle was disarmed only after its touchdown (by us or by
+    # the autopilot's auto-disarm; at 20x the client's 2 Hz EXTENDED_SYS_STATE can be stale enough for it to try
+    # a disarm in the air first, which the autopilot refuses)
+    names = [c["name"] for c in report["commands"]]
+    assert names.index("MAV_CMD_NAV_LAND") > names.index("MAV_CMD_DO_SET_MODE")  # OFFBOARD, then land
+    disarmed = [e for e in report["events"] if e["kind"] == "disarmed"]
+    assert len(disarmed) == 1 and disarmed[0]["sim_time_s"] >= report["landings"][0]["sim_time_s"]
+    assert_down_and_disarmed(report)
+
+
+# ------------------------------------------------------------------------------------------------ --sim
+def child_pids() -> set[int]:
+    """Pids of this process's children, from /proc."""
+    me, children = os.getpid(), set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == me:
+            children.add(int(entry.name))
+    return children
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="child processes are found through /proc")
+def test_sim_option_flies_the_bundled_sim_and_stops_it(tmp_path, capsys, monkeypatch, watchdog):
+    import vehicle
+
+    watchdog(45.0)
+    before = child_pids()
+    real_goto = vehicle.MavlinkVehicle.goto_local
+    seen = []
+
+    def goto_and_look(self, *args, **kwargs):  # in flight: the sim child runs in a process group of its own
+        if not seen:
+            seen.extend((pid, os.getpgid(pid)) for pid in child_pids() - before)
+        return real_goto(self, *args, **kwargs)
+
+    monkeypatch.setattr(vehicle.MavlinkVehicle, "goto_local", goto_and_look)
+    code = mp.main(["--sim", *goal_args(*GOAL_SHORT), "--log-dir", str(tmp_path), "--speedup", "10"])
+    out, err = capsys.readouterr()
+    assert code == mp.EXIT_OK, err
+    assert sum(line.startswith("mission complete:") for line in out.splitlines()) == 1
+    (summary,) = [line for line in out.splitlines() if line.startswith("sim report:")]
+    assert ", 0 collisions," in summary and "landed at" in summary
+    error_m = float(summary.split(" m from the goal")[0].rsplit("(", 1)[1])
+    assert error_m < 1.0
+    # a terminal's Ctrl-C reaches the foreground process group: the sim must not be in ours (it would stop
+    # while we land)
+    assert len(seen) == 1 and seen[0][1] != os.getpgrp()
+    assert child_pids() - before == set()  # stopped and reaped
+    (report_path,) = tmp_path.glob("sim-report-*.json")
+    assert report_path.stat().st_size > 0

@@ -428,11 +428,12 @@ class Mission:
                 reason = str(exc)
                 if not self.vehicle.link_ok:
                     self._link_lost_on_ground()
-                if self.clock() + self.arm_retry_s > deadline:
+                remaining_s = deadline - self.clock()
+                if remaining_s <= 0:
                     self._fire(MissionEvent.ARM_FAILED)
                     raise ArmingFailed(self.arm_timeout_s, attempts, reason) from exc
                 log.info("arming refused (%s); retrying", reason)
-                self.sleep(self.arm_retry_s)
+                self.sleep(min(self.arm_retry_s, remaining_s))
         self._fire(MissionEvent.ARMED)
 
     def _link_lost_on_ground(self) -> None:

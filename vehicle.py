@@ -211,10 +211,15 @@ class Telemetry:
 
     @property
     def on_ground(self) -> bool:
-        """Landed: EXTENDED_SYS_STATE says ON_GROUND, or (without it) near home altitude and not descending."""
+        """Landed: EXTENDED_SYS_STATE says ON_GROUND (or, without it, near home altitude), and not moving vertically.
+
+        The vertical-speed check guards against a landed state that is a moment old: just after takeoff the
+        last EXTENDED_SYS_STATE may still say ON_GROUND while the vehicle climbs.
+        """
+        still = not abs(self.v_down_mps) >= 0.2  # an unknown (NaN) speed does not veto the landed state
         if self.landed_state is not LandedState.UNDEFINED:
-            return self.landed_state is LandedState.ON_GROUND
-        return self.relative_alt_m < 0.3 and abs(self.v_down_mps) < 0.2
+            return self.landed_state is LandedState.ON_GROUND and still
+        return self.relative_alt_m < 0.3 and still
 
     @property
     def ground_speed_mps(self) -> float:
@@ -516,7 +521,7 @@ class MavlinkVehicle:
             mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: rate_hz,
             mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: rate_hz,
             mavlink.MAVLINK_MSG_ID_ATTITUDE: rate_hz,
-            mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
+            mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: rate_hz,  # touchdown detection
             mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
         }
         for msg_id, hz in rates.items():

@@ -284,6 +284,13 @@ def test_arm_refused_until_timeout_quotes_the_autopilot(clock):
     assert not planned and "takeoff" not in v.calls and not v.telemetry.armed
 
 
+def test_arming_keeps_trying_for_the_whole_timeout(clock):
+    v = FakeVehicle(clock, arm_refusals=10**6)
+    with pytest.raises(m.ArmingFailed) as err:
+        make_mission(v, clock, straight_plan([]), arm_timeout_s=3.5).run()
+    assert err.value.attempts == 5 and clock.now == pytest.approx(3.5)  # at t = 0, 1, 2, 3 and 3.5 s
+
+
 def test_no_path_disarms_and_never_takes_off(clock):
     class NoPathError(Exception):  # what planning_utils raises
         pass

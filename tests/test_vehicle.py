@@ -468,6 +468,11 @@ def test_on_ground_from_landed_state_or_altitude():
     assert vh.Telemetry(landed_state=vh.LandedState.ON_GROUND, relative_alt_m=30.0).on_ground
     assert not vh.Telemetry(landed_state=vh.LandedState.IN_AIR, relative_alt_m=0.0).on_ground
     assert vh.Telemetry(relative_alt_m=0.1, v_down_mps=0.0).on_ground
+
+
+def test_a_stale_on_ground_state_is_not_trusted_while_climbing():
+    # Just after takeoff the last EXTENDED_SYS_STATE can still say ON_GROUND while the vehicle climbs at 3 m/s.
+    assert not vh.Telemetry(landed_state=vh.LandedState.ON_GROUND, relative_alt_m=4.0, v_down_mps=-3.0).on_ground
     assert not vh.Telemetry(relative_alt_m=5.0, v_down_mps=0.0).on_ground
     assert not vh.Telemetry().on_ground  # nothing known yet
 

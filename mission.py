@@ -186,7 +186,9 @@ class MissionResult:
     ``planned_length_m`` counts the climb from the start to the first waypoint, the waypoint polyline and the
     descent from the last waypoint to the ground; ``flown_length_m`` is the 3D length of ``track`` (rows
     ``[time_s, north_m, east_m, altitude_m]`` from the takeoff command to touchdown). ``landing_error_m`` is the
-    horizontal distance from the touchdown point to the last waypoint.
+    horizontal distance from the touchdown point to the last waypoint. ``flight_time_s`` runs from the takeoff
+    command to touchdown in the autopilot's clock (LOCAL_POSITION_NED time since boot) when it reports one, so it
+    is simulated time against a sped-up simulator; ``track`` times are our own monotonic clock.
     """
 
     final_state: MissionState
@@ -319,6 +321,7 @@ class Mission:
         self._offset = LocalNED(0.0, 0.0, 0.0)
         self._track: list[tuple[float, float, float, float]] = []
         self._takeoff_s = math.nan
+        self._takeoff_autopilot_s = math.nan
         self._land_commanded = False
 
     # ------------------------------------------------------------------------------------------ plumbing
@@ -338,6 +341,11 @@ class Mission:
     def _to_local(self, north_m: float, east_m: float, altitude_m: float) -> LocalNED:
         return LocalNED(north_m - self._offset.north_m, east_m - self._offset.east_m,
                         -altitude_m - self._offset.down_m)
+
+    def _autopilot_time_s(self) -> float:
+        """The autopilot's time since boot (s), NaN if it does not say: flight times are in its time, which
+        also holds against a simulator running faster than the wall clock."""
+        return float(getattr(self.vehicle.telemetry, "local_time_s", math.nan))
 
     def _sample(self, force: bool = False) -> None:
         now = self.clock()
@@ -505,6 +513,7 @@ class Mission:
             self.vehicle.arm()
         here = self._map_position()
         self._takeoff_s = self.clock()
+        self._takeoff_autopilot_s = self._autopilot_time_s()
         self._sample(force=True)
         self.vehicle.takeoff(altitude_m - here.altitude_m)
         deadline = self.clock() + self.takeoff_timeout_s
@@ -562,7 +571,9 @@ class Mission:
             self._tick()
         self._sample(force=True)
         r = self.result
-        r.flight_time_s = self.clock() - self._takeoff_s
+        r.flight_time_s = self._autopilot_time_s() - self._takeoff_autopilot_s
+        if not math.isfinite(r.flight_time_s):  # no autopilot clock: our own
+            r.flight_time_s = self.clock() - self._takeoff_s
         r.flown_length_m = path_length_m(np.array(self._track)[:, 1:])
         if len(r.waypoints):
             p = self._map_position()

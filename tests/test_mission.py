@@ -266,6 +266,19 @@ def test_full_mission(clock):
     assert "planned 120.0 m" in result.summary()
 
 
+def test_flight_time_is_in_the_autopilots_clock_when_it_reports_one(clock):
+    # A simulator at 10x: the autopilot's time since boot runs ten times faster than ours.
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.tickers.append(lambda dt: setattr(v.telemetry, "local_time_s", 10.0 * clock.now))
+    v.telemetry.local_time_s = 0.0
+    takeoff_at = []
+    original_takeoff = v.takeoff
+    v.takeoff = lambda alt: (takeoff_at.append(clock.now), original_takeoff(alt))[1]
+    result = make_mission(v, clock, straight_plan([])).run()
+    touchdown_at = result.track[-1, 0]
+    assert result.flight_time_s == pytest.approx(10.0 * (touchdown_at - takeoff_at[0]), abs=1.0)
+
+
 def test_arm_refused_then_accepted(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0), arm_refusals=2)
     result = make_mission(v, clock, straight_plan([])).run()

@@ -37,3 +37,25 @@ def test_each_planner_flies_to_the_goal_without_collision(planner, tmp_path, cap
     assert landed is not None and not report["final"]["armed"]
     assert abs(landed["north_m"] - GOAL_NE[0]) < 1.0 and abs(landed["east_m"] - GOAL_NE[1]) < 1.0
     assert report["min_clearance_m"] >= SAFETY_M - 1.0
+
+
+@pytest.mark.flight
+def test_grid3d_lands_on_a_rooftop(tmp_path, capsys):
+    # The project map's 10 x 10 m building segment centred at N 20, E -18 has its roof at 14 m; its neighbours
+    # reach 16 m, so with a 5 m margin the route arrives at 21 m and the vehicle descends onto the roof.
+    goal_ne, roof_m = (20.3, -17.7), 14.0
+    goal = ned_to_geodetic(LocalNED(*goal_ne, 0.0), HOME)
+    config = SimConfig(map_path=ROOT / "colliders.csv", port=0, speedup=20, strict=True)
+    with Simulator(config) as sim:
+        code = main([
+            "--connection", f"tcp:127.0.0.1:{sim.port}", "--planner", "grid3d", "--goal_alt", "21",
+            "--goal_lat", f"{goal.lat_deg:.9f}", "--goal_lon", f"{goal.lon_deg:.9f}",
+            "--alt", "5", "--safety", str(SAFETY_M), "--log-dir", str(tmp_path), "--timeout", "10",
+        ])
+        report = sim.report()
+    assert code == 0, capsys.readouterr().err
+    assert report["collisions"] == []
+    landed = report["landed"]
+    assert landed["up_m"] == pytest.approx(roof_m, abs=0.2)
+    assert abs(landed["north_m"] - goal_ne[0]) < 1.0 and abs(landed["east_m"] - goal_ne[1]) < 1.0
+    assert not report["final"]["armed"]

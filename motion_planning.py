@@ -155,8 +155,14 @@ def make_plan(
             f"{setting.altitude_m:g} m with a {setting.safety_m:g} m safety margin ({exc})",
             EXIT_NO_PATH,
         ) from None
-    except (OutsideGridError, BlockedCellError, PlanningError) as exc:
-        raise UserError(f"cannot plan: {exc}") from None
+    except BlockedCellError as exc:  # e.g. a 3D goal whose altitude is inside a building's margin
+        where = setting.describe(*(start_ne if exc.which == "start" else goal_ne))
+        hint = ""
+        if exc.nearest_free is not None:
+            hint = "; nearest free point: " + setting.describe(*setting.grid_map.centre_of(exc.nearest_free))
+        raise UserError(f"cannot plan with {planner}: the {exc.which} {where} is blocked{hint}") from None
+    except (OutsideGridError, PlanningError) as exc:
+        raise UserError(f"cannot plan with {planner}: {exc}") from None
 
 
 def plan_summary(plan: Plan) -> str:

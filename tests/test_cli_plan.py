@@ -145,3 +145,12 @@ def test_default_map_is_the_project_map_and_plans_from_home(capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["start"]["north_m"] == 0 and doc["start"]["east_m"] == 0
     assert doc["waypoints"][-1][:2] == pytest.approx([-300.5, 350.5], abs=0.01)
+
+
+def test_3d_goal_inside_a_margin_names_the_nearest_free_point(walled_map, capsys):
+    # The wall is 20 m tall: a goal 1.5 m beside it at 21 m altitude is within the 2 m margin of its top.
+    code = main(["--plan-only", "--map", str(walled_map), "--safety", "2", "--planner", "grid3d",
+                 "--goal_alt", "21", *latlon(22.5, 0.3)])
+    err = capsys.readouterr().err.strip()
+    assert code == EXIT_BAD_INPUT and len(err.splitlines()) == 1
+    assert "the goal" in err and "is blocked; nearest free point: " in err

@@ -237,12 +237,7 @@ def resolve_endpoints(
 
     Raises ``OutsideGridError`` / ``BlockedCellError`` like ``GridMap.plan``.
     """
-    start_cell = gmap.cell_of(*start_ne)
-    lead_in = None
-    if snap_start and gmap.planner.is_blocked_inside(start_cell) and not gmap.inside_obstacle(*start_ne):
-        nearest = pu.nearest_free_cell(gmap.grid, start_cell)
-        if nearest is not None:
-            lead_in, start_cell = np.asarray(start_ne, dtype=np.float64), nearest
+    start_cell, lead_in = gmap.snap_start(start_ne) if snap_start else (gmap.cell_of(*start_ne), None)
     start_cell = gmap.planner.check_cell("start", start_cell)
     goal_cell = gmap.planner.check_cell("goal", gmap.cell_of(*goal_ne))
     return start_cell, goal_cell, lead_in

@@ -297,18 +297,13 @@ def resolve_endpoints_3d(
     lead_in = None
     n, m = floor.shape
     if snap_start and 0 <= start_cell[0] < n and 0 <= start_cell[1] < m and floor[start_cell] > altitude_m:
-        if not inside_footprint(obstacles, start_ne, altitude_m):
-            nearest = pu.nearest_free_cell(floor > altitude_m, start_cell)
-            if nearest is not None:
-                lead_in, start_cell = np.asarray(start_ne, dtype=np.float64), nearest
+        footprint = pu.create_grid(obstacles, altitude_m, 0.0)[0]  # same extent and offsets as ``floor``
+        snapped = pu.snap_start_cell(floor > altitude_m, footprint, start_cell)
+        if snapped is not None:
+            lead_in = np.array(pu.cell_to_map(start_cell, north_offset, east_offset))
+            start_cell = snapped
     start_cell = _check_cell(floor, "start", start_cell, altitude_m)
     return start_cell, _check_cell(floor, "goal", goal_cell, goal_alt_m), lead_in
-
-
-def inside_footprint(obstacles: np.ndarray, point_ne: Sequence[float], altitude_m: float) -> bool:
-    """True if ``point_ne`` is inside the footprint (no margin) of an obstacle taller than ``altitude_m``."""
-    n, e, alt, dn, de, da = np.asarray(obstacles, dtype=np.float64).T
-    return bool(((np.abs(n - point_ne[0]) < dn) & (np.abs(e - point_ne[1]) < de) & (alt + da > altitude_m)).any())
 
 
 def headings_3d(points: np.ndarray) -> np.ndarray:

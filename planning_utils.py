@@ -283,6 +283,39 @@ def nearest_free_cell(grid: np.ndarray, cell: Sequence[int]) -> tuple[int, int] 
         half *= 2
 
 
+def snap_start_cell(grid: np.ndarray, footprint: np.ndarray, cell: Sequence[int]) -> tuple[int, int] | None:
+    """Where to join the free space from a start ``cell`` that lies inside the safety margin.
+
+    Returns the free cell of ``grid`` nearest to ``cell`` whose straight leg from ``cell``'s centre touches no
+    blocked cell of ``footprint`` (the obstacles at the same altitude without margin: ``create_grid(data,
+    altitude, 0)``), so the way out of the margin never passes through a building. ``None`` if ``cell`` itself
+    is blocked in ``footprint`` (the start touches a building) or no such cell exists.
+
+    >>> grid = np.zeros((5, 7), dtype=bool); grid[:, 1:6] = True      # margin: only columns 0 and 6 free
+    >>> footprint = np.zeros_like(grid); footprint[:, 2] = True         # a wall between the start and column 0
+    >>> snap_start_cell(grid, footprint, (2, 3))                        # column 0 is nearer, but behind the wall
+    (2, 6)
+    """
+    i, j = int(cell[0]), int(cell[1])
+    n, m = grid.shape
+    if not (0 <= i < n and 0 <= j < m) or footprint[i, j]:
+        return None
+    half = 4
+    while True:
+        i0, i1, j0, j1 = max(i - half, 0), min(i + half + 1, n), max(j - half, 0), min(j + half + 1, m)
+        candidates = np.argwhere(~grid[i0:i1, j0:j1]) + (i0, j0)
+        d2 = ((candidates - (i, j)) ** 2).sum(axis=1)
+        whole_grid = i0 == 0 and j0 == 0 and i1 == n and j1 == m
+        for k in np.argsort(d2, kind="stable"):
+            if d2[k] > half * half and not whole_grid:
+                break  # a nearer visible cell may lie outside this window
+            if line_of_sight(footprint, (i, j), candidates[k]):
+                return int(candidates[k, 0]), int(candidates[k, 1])
+        if whole_grid:
+            return None
+        half *= 2
+
+
 # --------------------------------------------------------------------------------------------------------------
 # Search
 
@@ -598,25 +631,36 @@ class GridMap:
             ((np.abs(n - north_m) < dn) & (np.abs(e - east_m) < de) & (alt + da > self.altitude_m)).any()
         )
 
+    def snap_start(self, start_ne: Sequence[float]) -> tuple[tuple[int, int], np.ndarray | None]:
+        """The start cell to search from, and the lead-in point when the start lies inside the safety margin.
+
+        A start whose cell is blocked (but that touches no building) moves to the nearest free cell reachable by
+        a straight leg that passes no building (:func:`snap_start_cell`); the route then begins at the centre of
+        the start cell (the vehicle takes off inside that obstacle-free cell) and leads out to the snapped cell.
+        Otherwise the start cell is returned unchanged with no lead-in, and the search reports the problem.
+        """
+        start_cell = self.cell_of(*start_ne)
+        if not self.planner.is_blocked_inside(start_cell):
+            return start_cell, None
+        footprint = create_grid(self.obstacles, self.altitude_m, 0.0)[0]
+        snapped = snap_start_cell(self.grid, footprint, start_cell)
+        if snapped is None:
+            return start_cell, None
+        return snapped, np.array(self.centre_of(start_cell))
+
     def plan(self, start_ne: Sequence[float], goal_ne: Sequence[float], *, snap_start: bool = False) -> Plan:
         """Plan from map point ``start_ne`` to ``goal_ne`` (``(north_m, east_m)``), prune, make waypoints.
 
         The route runs between cell centres (within 0.71 m of the points). With ``snap_start``, a start inside
-        the safety margin (but not inside an obstacle) plans from the nearest free cell, and the route begins at
-        the start point itself with a leg out to that cell.
+        the safety margin (but not touching a building) leads out to the nearest free cell (:meth:`snap_start`).
 
         Raises
         ------
         OutsideGridError, BlockedCellError, NoPathError
             As :meth:`GridPlanner.plan`.
         """
-        start_cell = self.cell_of(*start_ne)
+        start_cell, lead_in = self.snap_start(start_ne) if snap_start else (self.cell_of(*start_ne), None)
         goal_cell = self.cell_of(*goal_ne)
-        lead_in = None
-        if snap_start and self.planner.is_blocked_inside(start_cell) and not self.inside_obstacle(*start_ne):
-            nearest = nearest_free_cell(self.grid, start_cell)
-            if nearest is not None:
-                lead_in, start_cell = np.asarray(start_ne, dtype=np.float64), nearest
         t0 = time.perf_counter()
         path = self.planner.plan(start_cell, goal_cell)
         search_ms = (time.perf_counter() - t0) * 1e3

@@ -293,3 +293,25 @@ def test_every_planner_flies_collision_free_legs_on_random_maps(name, example):
     assert result.length_m >= math.dist(start, goal) - 1e-9
     assert (np.diff(result.waypoints[:, :3], axis=0) != 0).any(axis=1).all()  # no repeated waypoint
     assert result.length_m <= result.cost_m + 1e-9  # pruning never lengthens a route; climbing costs >= 1 per m
+
+
+ALLEY = np.array([
+    # Two 20 m tall walls, 2 m thick, with a 4 m alley between them (east 1..5); posts mark the map's corners.
+    [50.0, 0.0, 10.0, 50.0, 1.0, 10.0],
+    [50.0, 6.0, 10.0, 50.0, 1.0, 10.0],
+    [-10.0, -30.0, 0.5, 0.5, 0.5, 0.5],
+    [110.0, 40.0, 0.5, 0.5, 0.5, 0.5],
+])
+
+
+@pytest.mark.parametrize("name", gp.PLANNERS)
+def test_a_snapped_start_never_leads_out_through_a_building(name):
+    # A start in the alley is inside the 5 m margin of both walls. The nearest free cells by distance lie
+    # beyond a wall; the way out must go along the alley instead, and no leg may touch a wall's footprint.
+    plan = gp.plan(name, ALLEY, (40.3, 3.3), (30.3, 30.3), 5.0, 5.0, snap_start=True)
+    footprint, n0, e0 = pu.create_grid(ALLEY, 5.0, 0.0)
+    points = plan.waypoints[:, :2]
+    for a, b in zip(points[:-1], points[1:]):
+        samples = a + np.linspace(0, 1, 2000)[:, None] * (b - a)
+        cells = np.floor(samples - (n0, e0)).astype(int)
+        assert not footprint[cells[:, 0], cells[:, 1]].any(), f"leg {a} -> {b} passes through a wall"

@@ -294,7 +294,7 @@ def test_start_inside_the_margin_plans_from_the_nearest_free_cell():
     with pytest.raises(BlockedCellError):
         grid_map.plan(start, (20.0, 0.0))
     plan = grid_map.plan(start, (20.0, 0.0), snap_start=True)
-    assert plan.waypoints[0, :2].tolist() == [-2.5, 0.2]
+    assert plan.waypoints[0, :2].tolist() == [-2.5, 0.5]  # the centre of the start's own cell
     assert plan.waypoints[1, :2].tolist() == [-3.5, 0.5]  # the nearest free cell's centre, then on as usual
 
 

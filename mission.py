@@ -9,8 +9,11 @@ Frames: waypoints are in the MAP frame (NED at the map's lat0/lon0, altitude 0 =
 ``vehicle.map_offset(map_origin)`` gives ``map = local + offset`` once, before arming.
 
 Safety: any failure after the takeoff command lands the vehicle (or holds it, if landing cannot be commanded)
-before the error propagates; Ctrl-C in flight lands first and then re-raises KeyboardInterrupt; a lost link is
-waited for ``link_lost_timeout_s`` and then reported (the autopilot's own failsafe owns the vehicle).
+before the error propagates; Ctrl-C in flight lands first and then re-raises KeyboardInterrupt, and so does an
+unexpected exception (a bug is re-raised as itself, never retried as a vehicle refusal); a lost link is waited for
+``link_lost_timeout_s`` and then reported (the autopilot's own failsafe owns the vehicle). A vehicle that disarms
+between takeoff and touchdown (a crash, or the autopilot killed the motors) is not commanded any more: the mission
+stops streaming setpoints and raises :class:`VehicleDisarmedInFlight` with where it happened.
 """
 
 from __future__ import annotations
@@ -39,7 +42,8 @@ class MissionState(enum.Enum):
     WAYPOINT = "waypoint"
     LANDING = "landing"
     DISARMING = "disarming"
-    FAILED = "failed"  # terminal: we could not bring the vehicle back to MANUAL (link lost, could not land/disarm)
+    FAILED = "failed"  # terminal: we could not bring the vehicle back to MANUAL (link lost, could not land/disarm,
+    #                     the vehicle disarmed before touchdown)
 
 
 class MissionEvent(enum.Enum):
@@ -57,6 +61,7 @@ class MissionEvent(enum.Enum):
     DISARMED = "disarmed"
     DISARM_FAILED = "disarm failed"
     LINK_LOST = "link lost"
+    DISARMED_IN_FLIGHT = "disarmed in flight"  # between takeoff and touchdown: crashed or killed by the autopilot
 
 
 S, E = MissionState, MissionEvent
@@ -79,6 +84,7 @@ TRANSITIONS: dict[tuple[MissionState, MissionEvent], MissionState] = {
     (S.DISARMING, E.DISARM_FAILED): S.FAILED,
     **{(state, E.LINK_LOST): S.FAILED
        for state in (S.ARMING, S.PLANNING, S.TAKEOFF, S.WAYPOINT, S.LANDING, S.DISARMING)},
+    **{(state, E.DISARMED_IN_FLIGHT): S.FAILED for state in (S.TAKEOFF, S.WAYPOINT, S.LANDING)},
 }
 del S, E
 
@@ -128,6 +134,27 @@ class PlanningFailed(MissionError):
 
 class FlightAborted(MissionError):
     """A failure after takeoff; the message says what failed and whether the vehicle landed or is holding."""
+
+
+class VehicleDisarmedInFlight(FlightAborted):
+    """The vehicle disarmed between takeoff and touchdown: crashed, or the autopilot killed the motors.
+
+    Also raised when it disarmed on the ground before the goal (e.g. it came down on a roof). Nothing is commanded
+    after it: a disarmed vehicle cannot be landed. ``position`` is its map position (``down_m`` = -altitude above
+    home), ``on_ground`` what the autopilot said, ``state`` the mission state when it was noticed.
+    """
+
+    def __init__(self, state: MissionState, position: LocalNED, on_ground: bool, context: str = ""):
+        self.state, self.position, self.on_ground = state, position, on_ground
+        where = (f"at map position {position.north_m:.1f} N, {position.east_m:.1f} E, "
+                 f"{position.altitude_m:.1f} m above home")
+        if on_ground:
+            what = (f"the vehicle disarmed on the ground in state {state.name}, before reaching the goal "
+                    f"(crashed or came down short, e.g. on a roof) {where}")
+        else:
+            what = (f"the vehicle disarmed in the air in state {state.name} (crashed or killed by the autopilot) "
+                    f"{where}")
+        super().__init__(f"{context}; then {what}" if context else what)
 
 
 class LinkLostInFlight(MissionError):
@@ -285,14 +312,15 @@ class Mission:
     no_path_errors : tuple of exception types
         What ``plan_fn`` raises when there is no path (e.g. ``planning_utils.NoPathError``).
     vehicle_errors : tuple of exception types
-        What vehicle calls raise on refusal/timeout (e.g. ``vehicle.VehicleError``): arming is retried on these.
+        What vehicle calls raise on refusal/timeout (e.g. ``vehicle.VehicleError``): arming is retried on these
+        and a flight that raises them lands. Required: anything else (a bug) propagates as itself.
     clock, sleep : callables
         Injected for tests (monotonic seconds; sleep seconds).
     """
 
     def __init__(self, vehicle: Vehicle, plan_fn: PlanFn, *, altitude_m: float, map_origin: Geodetic,
                  no_path_errors: tuple[type[BaseException], ...] = (NoPathFound,),
-                 vehicle_errors: tuple[type[BaseException], ...] = (Exception,),
+                 vehicle_errors: tuple[type[BaseException], ...],
                  arm_timeout_s: float = 60.0, arm_retry_s: float = 1.0,
                  takeoff_timeout_s: float = 60.0, leg_timeout_s: float = 60.0, min_speed_mps: float = 1.0,
                  landing_timeout_s: float = 120.0, disarm_timeout_s: float = 15.0,
@@ -354,11 +382,39 @@ class Mission:
             self._track.append((now, p.north_m, p.east_m, p.altitude_m))
 
     def _tick(self) -> None:
-        """One poll: wait, record the track, and notice a lost link."""
+        """One poll: wait, record the track, notice a lost link and a vehicle that disarmed in flight."""
         self.sleep(self.poll_s)
         if not self.vehicle.link_ok:
             self._link_lost()
         self._sample()
+        self._check_armed()
+
+    def _check_armed(self, context: str = "") -> None:
+        """Raise :class:`VehicleDisarmedInFlight` if the vehicle disarmed between takeoff and touchdown.
+
+        In TAKEOFF and WAYPOINT any disarm is one (on the ground too: it came down short of the goal); in LANDING
+        a disarm on the ground is the autopilot's auto-disarm after touchdown. Fires DISARMED_IN_FLIGHT (-> FAILED)
+        and stops streaming setpoints, so a re-armed vehicle does not fly off to the last one.
+        """
+        if self.state not in (MissionState.TAKEOFF, MissionState.WAYPOINT, MissionState.LANDING):
+            return
+        t = self.vehicle.telemetry
+        if t.armed:
+            return
+        on_ground = bool(t.on_ground)
+        if on_ground and self.state is MissionState.LANDING:
+            return
+        state, position = self.state, self._map_position()
+        self._sample(force=True)
+        log.error("the vehicle disarmed %s in state %s at map (%.1f N, %.1f E, %.1f m)",
+                  "on the ground" if on_ground else "in the air", state.name, position.north_m, position.east_m,
+                  position.altitude_m)
+        self._fire(MissionEvent.DISARMED_IN_FLIGHT)
+        try:
+            self.vehicle.release_control()
+        except self.vehicle_errors as exc:
+            log.warning("could not release control after the disarm: %s", exc)
+        raise VehicleDisarmedInFlight(state, position, on_ground, context)
 
     def _link_lost(self) -> None:
         """Wait up to ``link_lost_timeout_s`` for the link; if it comes back, abort (land); else fail."""
@@ -371,8 +427,9 @@ class Mission:
                 if self.state is MissionState.LANDING:
                     return  # keep landing
                 raise _Abort("the link was lost and came back")
+        state = self.state
         self._fire(MissionEvent.LINK_LOST)
-        raise LinkLostInFlight(f"link lost in state {self.state.name} for {self.link_lost_timeout_s:g} s; "
+        raise LinkLostInFlight(f"link lost in state {state.name} for {self.link_lost_timeout_s:g} s; "
                                "the autopilot's failsafe now owns the vehicle")
 
     def _finish(self, error: MissionError | None = None) -> MissionResult:
@@ -401,10 +458,14 @@ class Mission:
             The planner failed; the vehicle was disarmed and never took off.
         FlightAborted
             Something failed after takeoff; the vehicle landed (or holds, if landing could not be commanded).
+        VehicleDisarmedInFlight
+            A FlightAborted: the vehicle disarmed after takeoff and before touchdown (crash, or the autopilot
+            killed it), or on the ground short of the goal; final state FAILED, nothing more was commanded.
         LinkLostInFlight
             The link stayed lost; the autopilot's failsafe owns the vehicle.
-        KeyboardInterrupt
-            Re-raised after landing (in flight) or disarming (on the ground).
+        KeyboardInterrupt, or any exception that is not a MissionError nor in ``vehicle_errors`` (a bug)
+            Re-raised after landing (in flight) or disarming (on the ground), unless making the vehicle safe
+            raised LinkLostInFlight or VehicleDisarmedInFlight, which then replaces it.
 
         Every MissionError carries ``.result`` (the partial :class:`MissionResult`).
         """
@@ -419,10 +480,24 @@ class Mission:
             raise
         except KeyboardInterrupt:
             log.warning("interrupted in state %s", self.state.name)
-            self._make_safe("interrupted (Ctrl-C)")
-            self._finish()
+            self._abandon("interrupted (Ctrl-C)")
+            raise
+        except Exception as exc:  # a bug, not a refusal: make the vehicle safe, then re-raise it unchanged
+            log.exception("unexpected error in state %s", self.state.name)
+            self._abandon(f"unexpected error {exc!r}")
             raise
         return self._finish()
+
+    def _abandon(self, why: str) -> None:
+        """Make the vehicle safe after Ctrl-C or a bug; a MissionError from that (lost link, disarm in flight)
+        replaces the original exception, with ``why`` in its message."""
+        try:
+            outcome = self._make_safe(why)
+        except MissionError as exc:
+            self._finish(exc)
+            raise
+        log.warning("%s: %s", why, outcome)
+        self._finish()
 
     def _arm(self) -> None:
         deadline = self.clock() + self.arm_timeout_s
@@ -531,18 +606,33 @@ class Mission:
             self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, float(wp[3]))
             here = self._map_position()
             leg_m = math.hypot(wp[0] - here.north_m, wp[1] - here.east_m)
-            deadline = self.clock() + self.leg_timeout_s + leg_m / self.min_speed_mps
+            start_s = self.clock()
+            deadline = start_s + self.leg_timeout_s + leg_m / self.min_speed_mps
             if i < last:
                 turn = turn_angle_rad(waypoints[i - 1] if i else here_row(here), wp, waypoints[i + 1])
                 next_leg_m = float(np.hypot(*(waypoints[i + 1, :2] - wp[:2])))
             while not self._reached(wp, i == last, turn if i < last else 0.0, next_leg_m if i < last else 0.0):
                 if self.clock() > deadline:
-                    raise _Abort(f"waypoint {i} ({wp[0]:.1f} N, {wp[1]:.1f} E) not reached in time")
+                    raise _Abort(self._not_reached(i, wp, i == last, deadline - start_s))
                 self._tick()
             p = self._map_position()
             log.info("waypoint %d/%d reached at (%.1f N, %.1f E, %.1f m)", i, last, p.north_m, p.east_m,
                      p.altitude_m)
             self._fire(MissionEvent.GOAL_REACHED if i == last else MissionEvent.WAYPOINT_REACHED)
+
+    def _not_reached(self, i: int, wp: np.ndarray, is_last: bool, timeout_s: float) -> str:
+        """Why waypoint ``i`` timed out: how far off the vehicle is and how fast it still moves."""
+        p = self._map_position()
+        t = self.vehicle.telemetry
+        horizontal = math.hypot(wp[0] - p.north_m, wp[1] - p.east_m)
+        vertical = abs(wp[2] - p.altitude_m)
+        speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
+        why = (f"waypoint {i} ({wp[0]:.1f} N, {wp[1]:.1f} E, {wp[2]:.1f} m) not reached in time ({timeout_s:.0f} s): "
+               f"{horizontal:.2f} m off horizontally, {vertical:.2f} m vertically, moving {speed:.2f} m/s")
+        if is_last:
+            why += (f" (the goal needs <= {self.goal_tolerance_m:g} m, <= {self.altitude_tolerance_m:g} m vertically "
+                    f"and <= {self.stop_speed_mps:g} m/s)")
+        return why
 
     def _reached(self, wp: np.ndarray, is_last: bool, turn_rad: float, next_leg_m: float) -> bool:
         p = self._map_position()
@@ -565,7 +655,8 @@ class Mission:
 
     def _await_touchdown(self) -> None:
         deadline = self.clock() + self.landing_timeout_s
-        while not (self.vehicle.telemetry.on_ground or not self.vehicle.telemetry.armed):
+        self._check_armed()
+        while not self.vehicle.telemetry.on_ground:  # an autopilot that auto-disarms on touchdown says so too
             if self.clock() > deadline:
                 raise _Abort(f"no touchdown within {self.landing_timeout_s:g} s of the land command")
             self._tick()
@@ -587,10 +678,14 @@ class Mission:
     def _make_safe(self, why: str) -> str:
         """After a failure or Ctrl-C: land if flying (hold if landing fails), disarm if armed on the ground.
 
-        Returns what was done, for the error message. Raises only LinkLostInFlight.
+        Returns what was done, for the error message. Raises only LinkLostInFlight (the link stayed lost while
+        landing) and VehicleDisarmedInFlight (the vehicle disarmed before touchdown), with ``why`` in the message.
         """
-        if self.state in (MissionState.MANUAL, MissionState.FAILED):
-            return "the vehicle was not armed by us"
+        if self.state is MissionState.MANUAL:
+            return "nothing to undo: the vehicle is disarmed and not under our control"
+        if self.state is MissionState.FAILED:
+            return ("the mission had already failed (link lost, landing or disarming failed, or the vehicle disarmed "
+                    "in flight): it may still be in the air, the autopilot's failsafe owns it")
         if self.state in (MissionState.ARMING, MissionState.PLANNING, MissionState.DISARMING):
             if self.state is not MissionState.DISARMING:
                 self._fire(MissionEvent.ABORT)
@@ -599,6 +694,7 @@ class Mission:
             except (MissionError, *self.vehicle_errors) as exc:
                 return f"could not disarm: {exc}"
             return "disarmed on the ground" if math.isnan(self._takeoff_s) else "landed and disarmed"
+        self._check_armed(why)  # a disarmed vehicle cannot be landed
         if self.state is not MissionState.LANDING:
             self._fire(MissionEvent.ABORT)
         log.warning("%s: landing where we are", why)
@@ -620,7 +716,11 @@ class Mission:
         except _Abort as exc:
             self._fire(MissionEvent.LAND_FAILED)
             return f"landing commanded but not confirmed ({exc}); the autopilot is landing"
-        except (MissionError, *self.vehicle_errors) as exc:
+        except LinkLostInFlight as exc:  # not landed: the autopilot's failsafe has it
+            raise LinkLostInFlight(f"{why}; landing commanded, then {exc}") from exc
+        except VehicleDisarmedInFlight as exc:
+            raise VehicleDisarmedInFlight(exc.state, exc.position, exc.on_ground, f"{why}; landing") from exc
+        except (MissionError, *self.vehicle_errors) as exc:  # touchdown confirmed: disarm or release failed
             return f"landed, then {exc}"
         p = self._map_position()
         return f"landed at ({p.north_m:.1f} N, {p.east_m:.1f} E) and disarmed"

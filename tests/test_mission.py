@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -231,10 +232,11 @@ def straight_plan(calls):
     return plan
 
 
-def make_mission(vehicle, clock, plan_fn, **kwargs):
-    kwargs.setdefault("vehicle_errors", (Refused,))
+def make_mission(vehicle, clock, plan_fn, *, vehicle_errors=(Refused,), **kwargs):
+    """Mission is told what a refusal looks like (``Refused`` stands in for vehicle.VehicleError)."""
     kwargs.setdefault("altitude_m", 10.0)
-    return m.Mission(vehicle, plan_fn, map_origin=ORIGIN, clock=clock, sleep=clock.sleep, **kwargs)
+    return m.Mission(vehicle, plan_fn, map_origin=ORIGIN, vehicle_errors=vehicle_errors, clock=clock,
+                     sleep=clock.sleep, **kwargs)
 
 
 @pytest.fixture
@@ -471,6 +473,229 @@ def test_ctrl_c_while_landing_waits_for_touchdown(clock):
     with pytest.raises(KeyboardInterrupt):
         mission.run()
     assert v.telemetry.on_ground and not v.telemetry.armed and mission.state is S.MANUAL
+
+
+# ------------------------------------------------------------------------ disarmed between takeoff and touchdown
+def disarm_at(clock, v, t_s, *, on_ground=False):
+    """At ``t_s`` the autopilot disarms the vehicle where it is (the fake then stops moving, like a wreck).
+
+    Returns a list that then holds the fake's map position ``(north_m, east_m, altitude_m)`` and its call count.
+    """
+    seen = []
+
+    def kill():
+        t = v.telemetry
+        t.armed, t.on_ground = False, on_ground
+        seen.extend([(t.north_m + OFFSET.north_m, t.east_m + OFFSET.east_m, -t.down_m), len(v.calls)])
+
+    clock.at(t_s, kill)
+    return seen
+
+
+def reported_position(message):
+    """``(north_m, east_m, altitude_m)`` from a VehicleDisarmedInFlight message."""
+    found = re.search(r"at map position (-?[\d.]+) N, (-?[\d.]+) E, (-?[\d.]+) m above home", message)
+    return tuple(float(x) for x in found.groups())
+
+
+def test_disarm_in_the_air_on_a_leg_is_reported_at_once_and_not_landed(clock):
+    # at t = 10 s the vehicle is on the first 30 m leg north, 10 m up (the leg alone has a 90 s timeout)
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    seen = disarm_at(clock, v, 10.0)
+    with pytest.raises(m.VehicleDisarmedInFlight) as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert isinstance(err.value, m.FlightAborted) and isinstance(err.value, m.MissionError)  # the CLI's exit path
+    message = str(err.value)
+    assert message.startswith("the vehicle disarmed in the air in state WAYPOINT (crashed or killed by the autopilot)")
+    where, n_calls = seen
+    assert 10.0 < where[0] < 60.0 and where[2] == pytest.approx(10.0, abs=0.5)  # mid-leg, in the air
+    assert reported_position(message) == pytest.approx(where, abs=0.051)  # printed to 0.1 m
+    assert (err.value.position.north_m, err.value.position.east_m, err.value.position.altitude_m) == \
+        pytest.approx(where)
+    assert not err.value.on_ground and err.value.state is S.WAYPOINT
+    assert 10.0 <= clock.now <= 10.0 + 0.05 + 1e-9  # noticed on the next poll, not after the leg timeout
+    assert v.calls[n_calls:] == ["release_control"] and v.setpoint is None  # no land, no disarm
+    result = err.value.result
+    assert result.final_state is S.FAILED and not result.completed
+    assert result.history[-1] == (S.WAYPOINT, E.DISARMED_IN_FLIGHT, S.FAILED)
+    assert result.track[-1, 1:] == pytest.approx(where)
+
+
+def test_disarm_during_takeoff_is_reported(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    seen = disarm_at(clock, v, 1.0)  # climbing at 5 m/s straight up from map (0, 0)
+    with pytest.raises(m.VehicleDisarmedInFlight, match="in the air in state TAKEOFF") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert reported_position(str(err.value)) == pytest.approx((0.0, 0.0, 5.0), abs=0.051) == seen[0]
+    assert "land" not in v.calls and "goto_local" not in v.calls
+
+
+def test_disarm_on_the_ground_short_of_the_goal_is_an_abnormal_end(clock):
+    # e.g. it came down on a roof: ON_GROUND but disarmed, 10 m above home, long before the goal
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    seen = disarm_at(clock, v, 10.0, on_ground=True)
+    with pytest.raises(m.VehicleDisarmedInFlight,
+                       match=r"disarmed on the ground in state WAYPOINT, before reaching the goal") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    where, n_calls = seen
+    assert where[2] == pytest.approx(10.0, abs=0.5)  # on a roof, 10 m above home
+    assert reported_position(str(err.value)) == pytest.approx(where, abs=0.051)
+    assert err.value.on_ground and err.value.result.final_state is S.FAILED
+    assert v.calls[n_calls:] == ["release_control"] and v.setpoint is None
+
+
+def test_disarm_in_the_air_during_the_final_descent_is_not_mission_complete(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    real_land = v.land
+
+    seen = []
+
+    def land():
+        real_land()
+        seen.append(disarm_at(clock, v, clock.now + 2.0))  # 3 m lower at 1.5 m/s: 7 m above home
+
+    v.land = land
+    with pytest.raises(m.VehicleDisarmedInFlight, match=r"in the air in state LANDING") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert reported_position(str(err.value)) == pytest.approx((60.0, 40.0, 7.0), abs=0.1)
+    assert seen[0][0] == pytest.approx((60.0, 40.0, 7.0), abs=0.1)
+    result = err.value.result
+    assert not result.completed and result.final_state is S.FAILED
+    assert math.isnan(result.landing_error_m)  # no touchdown was recorded
+    assert v.calls[-2:] == ["land", "release_control"]
+
+
+def test_autopilot_disarming_itself_on_touchdown_is_a_landing(clock):
+    # PX4/ArduPilot auto-disarm after touchdown and say ON_GROUND: that is a normal end
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def auto_disarm(dt):
+        if v.mode == "land" and v.telemetry.on_ground:
+            v.telemetry.armed = False
+
+    clock.tickers.append(auto_disarm)
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and result.final_state is S.MANUAL
+    assert v.calls[-2:] == ["land", "release_control"]  # already disarmed: no disarm command
+
+
+def test_disarm_during_the_abort_landing_is_reported_with_the_first_failure(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.fail_on["goto_local"] = Refused("SET_POSITION_TARGET refused")  # right after the climb
+    real_land = v.land
+
+    def land():
+        real_land()
+        disarm_at(clock, v, clock.now + 1.0)
+
+    v.land = land
+    with pytest.raises(m.VehicleDisarmedInFlight,
+                       match=r"SET_POSITION_TARGET refused; landing; then the vehicle disarmed in the air in state "
+                             r"LANDING") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert err.value.result.final_state is S.FAILED
+    assert v.calls.count("land") == 1 and "disarm" not in v.calls
+
+
+def test_link_back_to_a_disarmed_vehicle_does_not_land_it(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(10.0, lambda: setattr(v, "link_ok", False))
+    disarm_at(clock, v, 11.0)
+    clock.at(12.0, lambda: setattr(v, "link_ok", True))
+    with pytest.raises(m.VehicleDisarmedInFlight, match="lost and came back; then the vehicle disarmed in the air"):
+        make_mission(v, clock, straight_plan([]), link_lost_timeout_s=5.0).run()
+    assert "land" not in v.calls
+
+
+# ----------------------------------------------------------------------------- making safe after a failure
+def test_link_lost_for_good_while_landing_after_a_failure_is_not_reported_as_landed(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.fail_on["goto_local"] = Refused("SET_POSITION_TARGET refused")  # at t = 2 s, 10 m up
+    real_land = v.land
+
+    def land():
+        real_land()
+        clock.at(clock.now + 1.0, lambda: setattr(v, "link_ok", False))  # for good, 8.5 m up
+
+    v.land = land
+    with pytest.raises(m.LinkLostInFlight,
+                       match="SET_POSITION_TARGET refused; landing commanded, then link lost in state LANDING") as err:
+        make_mission(v, clock, straight_plan([]), link_lost_timeout_s=2.0).run()
+    assert not isinstance(err.value, m.FlightAborted) and "landed" not in str(err.value)
+    assert err.value.result.final_state is S.FAILED
+    assert not v.telemetry.on_ground  # the autopilot is still descending: it had not landed
+
+
+def test_ctrl_c_after_the_mission_failed_says_so(clock, caplog):
+    # landing refused -> LAND_FAILED (FAILED); Ctrl-C while asking to hold: the vehicle is in the air
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.fail_on["goto_local"] = Refused("boom")
+    v.fail_on["land!"] = Refused("NAV_LAND unsupported")
+
+    def hold():
+        v.calls.append("hold")
+        raise KeyboardInterrupt
+
+    v.hold = hold
+    mission = make_mission(v, clock, straight_plan([]))
+    with caplog.at_level("WARNING", logger="mission"), pytest.raises(KeyboardInterrupt):
+        mission.run()
+    assert mission.state is S.FAILED
+    assert "interrupted (Ctrl-C): the mission had already failed" in caplog.text
+    assert "may still be in the air" in caplog.text and "not armed by us" not in caplog.text
+
+
+# ----------------------------------------------------------------------------------- bugs are not refusals
+def test_vehicle_errors_must_be_given(clock):
+    with pytest.raises(TypeError, match="vehicle_errors"):
+        m.Mission(FakeVehicle(clock), straight_plan([]), altitude_m=10.0, map_origin=ORIGIN)
+
+
+def test_a_bug_while_arming_is_not_retried_as_a_refusal(clock):
+    v = FakeVehicle(clock)
+
+    def arm():
+        v.calls.append("arm")
+        raise AttributeError("'NoneType' object has no attribute 'mav'")
+
+    v.arm = arm
+    with pytest.raises(AttributeError, match="mav"):
+        make_mission(v, clock, straight_plan([])).run()
+    assert v.calls == ["arm"] and clock.now == 0.0  # not retried for arm_timeout_s
+
+
+def test_a_bug_in_flight_lands_then_propagates_as_itself(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.fail_on["goto_local"] = TypeError("goto_local() got an unexpected keyword argument")
+    mission = make_mission(v, clock, straight_plan([]))
+    with pytest.raises(TypeError, match="unexpected keyword"):
+        mission.run()
+    assert v.calls[-3:] == ["land", "disarm", "release_control"]
+    assert v.telemetry.on_ground and not v.telemetry.armed and mission.state is S.MANUAL
+
+
+# ----------------------------------------------------------------------------- the final waypoint's tolerance
+def test_hovering_half_a_metre_off_the_goal_lands_there_after_the_leg_timeout(clock):
+    # GPS noise or a biased position controller: the vehicle settles 0.5 m east of the goal, outside the 0.3 m
+    # tolerance. Default timeouts: the last leg (40 m) gets 60 s + 40 m / 1 m/s = 100 s, then it lands there.
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    real_goto = v.goto_local
+
+    def biased_goto(north_m, east_m, down_m, yaw_rad):
+        real_goto(north_m, east_m + (0.5 if len(v.gotos) == 3 else 0.0), down_m, yaw_rad)
+
+    v.goto_local = biased_goto
+    with pytest.raises(m.FlightAborted, match=r"waypoint 3 \(60\.0 N, 40\.0 E, 10\.0 m\) not reached in time "
+                                              r"\(100 s\): 0\.50 m off horizontally.*landed at \(60\.0 N, 40\.5 E\)"
+                       ) as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert "the goal needs <= 0.3 m" in str(err.value)
+    result = err.value.result
+    assert result.final_state is S.MANUAL and not result.completed
+    assert result.landing_error_m == pytest.approx(0.5, abs=0.01)
+    assert v.calls[-3:] == ["land", "disarm", "release_control"] and v.telemetry.on_ground
+    # climb 2 s + 60 m at 5 m/s + the last leg's 100 s timeout + 10 m descent at 1.5 m/s
+    assert clock.now == pytest.approx(2 + 12 + 100 + 10 / 1.5, abs=1.0)
 
 
 # ------------------------------------------------------------------------- missions against sim/

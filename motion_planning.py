@@ -14,10 +14,14 @@ alone starts fast.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import math
+import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +38,8 @@ from planning_utils import (
     OutsideGridError,
     Plan,
     PlanningError,
+    create_grid,
+    nearest_free_cell,
     read_colliders,
 )
 
@@ -41,6 +47,7 @@ log = logging.getLogger("motion_planning")
 
 DEFAULT_MAP = Path(__file__).resolve().with_name("colliders.csv")
 PLANNERS = ("grid", "medial-axis", "voronoi", "prm", "grid3d", "any-angle")
+PLANNERS_3D = ("prm", "grid3d")  # the planners that can end at another altitude (--goal_alt)
 
 EXIT_OK = 0
 EXIT_FAILED = 1  # the mission started but did not complete
@@ -71,6 +78,11 @@ class Setting:
     altitude_m: float
     safety_m: float
 
+    @functools.cached_property
+    def landing_grid(self) -> np.ndarray:
+        """Cells at least the safety margin from every obstacle, however low: where the vehicle may descend."""
+        return create_grid(self.city.obstacles, 0.0, self.safety_m)[0]
+
     def to_geodetic(self, north_m: float, east_m: float) -> Geodetic:
         return ned_to_geodetic(LocalNED(north_m, east_m, 0.0), self.home)
 
@@ -80,12 +92,31 @@ class Setting:
         return f"{p.lat_deg:.6f}, {p.lon_deg:.6f} (N {north_m:.1f} m, E {east_m:.1f} m)"
 
 
+def check_numbers(**options) -> None:
+    """Refuse NaN, infinite and out-of-range numbers before they reach a planner or a vehicle.
+
+    (NaN compares False with everything, so without this ``--safety nan`` would silently plan through buildings.)
+    """
+    ranges = {  # option: (lowest, highest, lowest allowed itself)
+        "goal_lat": (-90.0, 90.0, True), "start_lat": (-90.0, 90.0, True),
+        "goal_lon": (-180.0, 180.0, True), "start_lon": (-180.0, 180.0, True),
+        "alt": (0.0, 10_000.0, False), "safety": (0.0, 1_000.0, True), "goal_alt": (0.0, 10_000.0, True),
+        "speedup": (0.0, 1_000.0, False), "timeout": (0.0, 86_400.0, False),
+        "arm_timeout": (0.0, 86_400.0, False), "link_timeout": (0.0, 86_400.0, False),
+        "port": (1, 65_535, True), "seed": (0, 2**32 - 1, True),
+    }
+    for name, value in options.items():
+        if value is None or name not in ranges:
+            continue
+        low, high, low_ok = ranges[name]
+        if not (math.isfinite(value) and (low <= value if low_ok else low < value) and value <= high):
+            bound = f"{'>=' if low_ok else '>'} {low:g} and <= {high:g}"
+            raise UserError(f"--{name.replace('_', '-') if name.endswith('timeout') else name} must be {bound}, "
+                            f"got {value}")
+
+
 def load_setting(map_path: str | Path, altitude_m: float, safety_m: float) -> Setting:
     """Read the map and build the configuration-space grid; map problems become :class:`UserError`."""
-    if altitude_m <= 0:
-        raise UserError(f"--alt must be above the ground, got {altitude_m} m")
-    if safety_m < 0:
-        raise UserError(f"--safety must be >= 0, got {safety_m} m")
     try:
         city = read_colliders(map_path)
     except MapFormatError as exc:
@@ -96,11 +127,16 @@ def load_setting(map_path: str | Path, altitude_m: float, safety_m: float) -> Se
     return Setting(city, home, GridMap.build(city.obstacles, altitude_m, safety_m), altitude_m, safety_m)
 
 
-def check_endpoint(setting: Setting, which: str, north_m: float, east_m: float, *, allow_margin: bool = False):
+def check_endpoint(
+    setting: Setting, which: str, north_m: float, east_m: float, *, allow_margin: bool = False,
+    on_map_only: bool = False,
+) -> None:
     """Raise :class:`UserError` if a start or goal point is off the map or inside an obstacle or its margin.
 
     With ``allow_margin`` a point inside the safety margin (but outside every obstacle) passes: the planner then
-    starts from the nearest free cell.
+    starts from the nearest free cell. ``on_map_only`` checks only that the point is on the map (a 3D goal, which
+    the 3D planner checks at its own altitude). A goal must also keep the margin from buildings lower than the
+    flight altitude, since the vehicle descends there.
     """
     grid_map = setting.grid_map
     n, m = grid_map.grid.shape
@@ -111,7 +147,18 @@ def check_endpoint(setting: Setting, which: str, north_m: float, east_m: float, 
             f"{which} {where} is off the map, which spans N {grid_map.north_offset}..{grid_map.north_offset + n} m, "
             f"E {grid_map.east_offset}..{grid_map.east_offset + m} m from home"
         )
+    if on_map_only:
+        return
     if not grid_map.grid[i, j]:
+        if which == "goal" and setting.landing_grid[i, j]:
+            nearest = nearest_free_cell(setting.landing_grid, (i, j))
+            hint = "no free point on the map"
+            if nearest is not None:
+                hint = "nearest free landing point: " + setting.describe(*grid_map.centre_of(nearest))
+            raise UserError(
+                f"{which} {where} is within the {setting.safety_m:g} m safety margin of a building lower than the "
+                f"flight altitude, which the descent would pass; {hint}"
+            )
         return
     inside = grid_map.inside_obstacle(north_m, east_m)
     if allow_margin and not inside:
@@ -223,12 +270,20 @@ class PlanRefused(Exception):
         self.error = error
 
 
+def make_log_dir(log_dir: str | Path) -> Path:
+    """Create the log directory, or raise :class:`UserError` saying why not."""
+    try:
+        Path(log_dir).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot use {log_dir} as the log directory: {exc.strerror or exc}") from None
+    return Path(log_dir)
+
+
 def open_logs(log_dir: str | Path) -> tuple[Path, Path, logging.Handler]:
     """Create ``log_dir`` and a navigation log handler (flushed after every record) plus a tlog path."""
     import time
 
-    log_dir = Path(log_dir)
-    log_dir.mkdir(parents=True, exist_ok=True)
+    log_dir = make_log_dir(log_dir)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     nav_path, tlog_path = log_dir / f"navlog-{stamp}.txt", log_dir / f"flight-{stamp}.tlog"
     handler = logging.FileHandler(nav_path, encoding="utf-8")  # StreamHandler flushes after each record
@@ -470,13 +525,21 @@ def run(
         raise UserError("give the goal as --goal_lat DEG --goal_lon DEG")
     if (start_lat is None) != (start_lon is None):
         raise UserError("give both --start_lat and --start_lon, or neither (start at the map's home)")
+    check_numbers(goal_lat=goal_lat, goal_lon=goal_lon, start_lat=start_lat, start_lon=start_lon, alt=alt,
+                  safety=safety, goal_alt=goal_alt, seed=seed, port=port, speedup=speedup, timeout=timeout,
+                  arm_timeout=arm_timeout, link_timeout=link_timeout)
+    if goal_alt is not None and planner not in PLANNERS_3D:
+        raise UserError(f"--goal_alt needs a 3D planner ({' or '.join(PLANNERS_3D)}), not {planner}")
+    if plot and not Path(plot).resolve().parent.is_dir():
+        raise UserError(f"cannot write the plot {plot}: {Path(plot).resolve().parent} is not a directory")
     setting = load_setting(map_path, alt, safety)
     goal_ne = geodetic_to_ned(Geodetic(goal_lat, goal_lon, 0.0), setting.home)[:2]
     if not plan_only:
         if start_lat is not None and not sim:
             raise UserError("--start_lat/--start_lon need --plan-only or --sim: a real vehicle starts where it is")
-        if goal_alt is None:
-            check_endpoint(setting, "goal", *goal_ne)  # refuse a bad goal before connecting, let alone arming
+        # Refuse a bad goal before connecting, let alone arming.
+        check_endpoint(setting, "goal", *goal_ne, on_map_only=goal_alt is not None)
+        make_log_dir(log_dir)
         options = dict(planner=planner, goal_alt_m=goal_alt, seed=seed, heartbeat_timeout_s=timeout,
                        arm_timeout_s=arm_timeout, link_lost_timeout_s=link_timeout, log_dir=log_dir, plot=plot,
                        out=out)
@@ -484,7 +547,6 @@ def run(
             return fly(setting, goal_ne, connection=connection or f"tcp:{host}:{port}", **options)
         import time
 
-        Path(log_dir).mkdir(parents=True, exist_ok=True)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         start = None if start_lat is None else Geodetic(start_lat, start_lon, 0.0)
         bundled = BundledSim(map_path, speedup=speedup, start=start,
@@ -500,6 +562,8 @@ def run(
     start_ne = (0.0, 0.0)
     if start_lat is not None:
         start_ne = geodetic_to_ned(Geodetic(start_lat, start_lon, 0.0), setting.home)[:2]
+    if goal_alt is not None:
+        check_endpoint(setting, "goal", *goal_ne, on_map_only=True)
     plan = make_plan(setting, start_ne, goal_ne, planner, goal_alt_m=goal_alt, seed=seed)
     if json_output:
         json.dump(plan_document(setting, plan, start_ne, goal_ne), out)
@@ -570,6 +634,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.INFO if args.pop("verbose") else logging.WARNING,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    # SIGTERM (a service manager, `kill`) is handled like Ctrl-C: land first, stop the bundled sim, then exit.
+    restore = None
+    if threading.current_thread() is threading.main_thread():
+        restore = signal.signal(signal.SIGTERM, _interrupt)
     try:
         return run(**args)
     except UserError as exc:
@@ -578,6 +646,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # e.g. `... --json | head`: the reader left; say nothing more
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAILED
+    finally:
+        if restore is not None:
+            signal.signal(signal.SIGTERM, restore)
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 if __name__ == "__main__":

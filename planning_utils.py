@@ -221,8 +221,14 @@ def create_grid(data: np.ndarray, drone_altitude: float, safety_distance: float)
     data = np.asarray(data, dtype=np.float64)
     if data.ndim != 2 or data.shape[1] != 6 or len(data) == 0:
         raise ValueError(f"obstacle data must be a non-empty (N, 6) array, got shape {data.shape}")
-    if safety_distance < 0:
-        raise ValueError(f"safety_distance must be >= 0, got {safety_distance}")
+    # NaN compares False with everything: unchecked, it would make every obstacle "low" and the grid all free.
+    if math.isnan(drone_altitude) or not (math.isfinite(safety_distance) and safety_distance >= 0):
+        raise ValueError(
+            f"drone_altitude must not be NaN and safety_distance must be finite and >= 0, got {drone_altitude}, "
+            f"{safety_distance}"
+        )
+    if not np.isfinite(data).all():
+        raise ValueError("obstacle data contains NaN or infinite values")
     north, east, alt, d_north, d_east, d_alt = data.T
     north_offset = int(np.floor(np.min(north - d_north)))
     east_offset = int(np.floor(np.min(east - d_east)))
@@ -373,6 +379,7 @@ class GridPlanner:
         self._seen = np.zeros(size, np.int32)
         self._closed = np.zeros(size, np.int32)
         self._query = 0
+        grid_search.warm_up()
 
     def _flat(self, cell: tuple[int, int]) -> int:
         return (cell[0] + 1) * self._width + cell[1] + 1

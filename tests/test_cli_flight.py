@@ -426,3 +426,53 @@ def test_sim_option_flies_the_bundled_sim_and_stops_it(tmp_path, capsys, monkeyp
     assert child_pids() - before == set()  # stopped and reaped
     (report_path,) = tmp_path.glob("sim-report-*.json")
     assert report_path.stat().st_size > 0
+
+
+@pytest.mark.flight
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="processes are found through /proc")
+def test_sigterm_during_sim_lands_stops_the_sim_and_exits_130(tmp_path):
+    """`kill <client>` while flying with --sim: the client lands first, stops its sim child, exits 130."""
+    import subprocess
+    import sys
+
+    script = Path(mp.__file__).resolve()
+    client = subprocess.Popen(
+        [sys.executable, str(script), "--sim", *goal_args(*GOAL_SHORT), "--log-dir", str(tmp_path),
+         "--speedup", "10"],
+        cwd=script.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        for line in client.stdout:  # wait until the mission is under way
+            if line.startswith("connected to") or time.monotonic() > deadline:
+                break
+        time.sleep(3.0)  # airborne by now (takeoff takes ~2 s of sim time at 10x)
+        sims = {pid for pid in _pids_of_parent(client.pid)}
+        assert sims, "the bundled sim should be running"
+        client.send_signal(signal.SIGTERM)
+        out, err = client.communicate(timeout=60)
+    finally:
+        if client.poll() is None:
+            client.kill()
+            client.wait()
+    assert client.returncode == mp.EXIT_INTERRUPTED, err
+    assert "interrupted" in err
+    assert not any(Path(f"/proc/{pid}").exists() for pid in sims), "the sim child was left running"
+    import json
+
+    (report_path,) = tmp_path.glob("sim-report-*.json")
+    report = json.loads(report_path.read_text())
+    assert report["collisions"] == [] and not report["final"]["armed"] and report["final"]["on_ground"]
+
+
+def _pids_of_parent(parent: int) -> set[int]:
+    pids = set()
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == parent:
+                pids.add(int(entry.name))
+    return pids

@@ -154,3 +154,56 @@ def test_3d_goal_inside_a_margin_names_the_nearest_free_point(walled_map, capsys
     err = capsys.readouterr().err.strip()
     assert code == EXIT_BAD_INPUT and len(err.splitlines()) == 1
     assert "the goal" in err and "is blocked; nearest free point: " in err
+
+
+@pytest.mark.parametrize(
+    "extra, fragment",
+    [
+        (["--safety", "nan"], "--safety must be >= 0"),  # NaN would make every building "low": a straight line
+        (["--alt", "nan"], "--alt must be > 0"),
+        (["--alt", "inf"], "--alt must be > 0"),
+        (["--alt", "-3"], "--alt must be > 0"),
+        (["--goal_alt", "-5", "--planner", "grid3d"], "--goal_alt must be >= 0"),
+        (["--timeout", "nan"], "--timeout must be > 0"),
+        (["--arm-timeout", "-1"], "--arm-timeout must be > 0"),
+        (["--port", "99999"], "--port must be >= 1 and <= 65535"),
+        (["--seed", "-1"], "--seed must be >= 0"),
+    ],
+)
+def test_non_finite_or_out_of_range_numbers_are_refused(walled_map, capsys, extra, fragment):
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), *extra]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and fragment in err
+
+
+@pytest.mark.parametrize("lat, lon", [("1000", "5"), ("nan", "-122.39"), ("37.79", "-200")])
+def test_impossible_coordinates_are_refused_as_typed(lat, lon, capsys):
+    assert main(["--plan-only", "--goal_lat", lat, "--goal_lon", lon]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "must be >= -" in err and (lat in err or lon in err)
+
+
+def test_goal_alt_with_a_2d_planner_is_refused(walled_map, capsys):
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--goal_alt", "30"]) == EXIT_BAD_INPUT
+    assert "--goal_alt needs a 3D planner" in capsys.readouterr().err
+
+
+def test_goal_beside_a_low_building_is_refused_because_the_descent_passes_it(tmp_path, capsys):
+    # A 3 m high shed: the drone cruises over it at 10 m, but landing 1 m beside it descends through its margin.
+    shed = tmp_path / "shed.csv"
+    shed.write_text(
+        "lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+        "20,0,1.5,2,2,1.5\n-40,-40,0.5,0.5,0.5,0.5\n40,40,0.5,0.5,0.5,0.5\n"
+    )
+    code = main(["--plan-only", "--map", str(shed), "--alt", "10", "--safety", "3", *latlon(23.3, 0.3)])
+    err = capsys.readouterr().err
+    assert code == EXIT_BAD_INPUT
+    assert "safety margin of a building lower than the flight altitude" in err and "nearest free landing point" in err
+    assert main(["--plan-only", "--map", str(shed), "--alt", "10", "--safety", "3", *latlon(26.3, 0.3)]) == 0
+
+
+def test_plot_into_a_missing_directory_is_refused_before_planning(walled_map, tmp_path, capsys):
+    target = tmp_path / "missing" / "plan.png"
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--plot", str(target)]) == 2
+    captured = capsys.readouterr()
+    assert "is not a directory" in captured.err and captured.out == ""

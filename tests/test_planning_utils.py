@@ -170,6 +170,13 @@ def test_create_grid_rejects_bad_input():
         create_grid(np.zeros((3, 5)), 5, 5)
     with pytest.raises(ValueError, match="safety_distance"):
         create_grid(np.ones((1, 6)), 5, -1)
+    # NaN compares False with everything: unchecked, it would make every obstacle "low" and the grid all free.
+    with pytest.raises(ValueError, match="finite"):
+        create_grid(np.ones((1, 6)), 5, float("nan"))
+    with pytest.raises(ValueError, match="NaN"):
+        create_grid(np.ones((1, 6)), float("nan"), 5)
+    with pytest.raises(ValueError, match="NaN"):
+        create_grid(np.array([[0, 0, np.nan, 1, 1, 1]]), 5, 5)
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -27,6 +27,10 @@ clients must stream setpoints first). On a classic link the ``z`` of LOCAL_NED s
 positive altitude; on every other link it is NED (negative up). Outside ``--strict`` OFFBOARD may
 be entered without a setpoint stream (the vehicle holds) and has no setpoint timeout.
 
+Bytes that are not MAVLink are skipped without losing the packets around them (``sim/framing.py``),
+and reported as a ``client`` event: the course's motion_planning.py ``send_waypoints()`` writes raw
+msgpack into the TCP stream for the Unity simulator to draw. The sim does not draw or use them.
+
 ``--strict`` behaves like PX4: ``z`` is always NED, the 0x1000/0x2000 bits are ignored (with a
 STATUSTEXT warning), OFFBOARD (and arming in it) is refused without a setpoint received in the last
 COM_OF_LOSS_T seconds, and when setpoints stop for that long the vehicle switches to hold

@@ -19,6 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from .commands import LinkState
 from .faults import FaultConfig, LinkFaults
+from .framing import FrameScanner
 from .telemetry import COMPONENT_ID, SYSTEM_ID
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,8 @@ class TcpLink(LinkState):
         self.peer = peer
         self.faults = faults
         self.mav = mavlink.MAVLink(None, SYSTEM_ID, COMPONENT_ID)
-        self.mav.robust_parsing = True
+        self.scanner = FrameScanner(self.mav)
+        self.junk_unreported = 0  # bytes skipped as not MAVLink, not yet reported by the simulator
         self.out_buf = bytearray()
         self.delayed_out: collections.deque = collections.deque()
         self.delayed_in: collections.deque = collections.deque()
@@ -66,9 +68,9 @@ class TcpLink(LinkState):
         if data == b"":
             self.closed = True
         elif data:
-            for msg in self.mav.parse_buffer(data) or []:
-                if msg.get_type() == "BAD_DATA":
-                    continue
+            msgs, junk = self.scanner.feed(data)
+            self.junk_unreported += junk
+            for msg in msgs:
                 self.packets_in += 1
                 if self.faults.drop_in(elapsed_s):
                     continue

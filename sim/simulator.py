@@ -245,6 +245,11 @@ class Simulator:
                     if self._tlog is not None:
                         self._tlog.record_incoming(msg)
                     ap.handle(link, msg)
+                for link in list(server.links) + closed:
+                    if link.junk_unreported:
+                        self._emit("client", f"link {link.link_id}: ignored {link.junk_unreported} byte(s) that are "
+                                   "not MAVLink (e.g. udacidrone send_waypoints() msgpack)")
+                        link.junk_unreported = 0
                 for link in closed:
                     self._emit("client", f"link {link.link_id} disconnected")
                 target_sim = (wall - sim_origin_wall) * cfg.speedup

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from .config import SimConfig, default_map_path
 from .faults import FaultConfig, command_id
+from .world import CityMap, MapFormatError
 
 
 def _pair(text: str) -> tuple[float, float]:
@@ -115,6 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     if not map_path.exists():
         print(f"error: map {map_path} not found (pass --map)", file=sys.stderr)
         return 2
+    try:
+        city = CityMap.from_csv(map_path)
+    except (MapFormatError, OSError, UnicodeDecodeError) as exc:
+        print(f"error: cannot read map {map_path}: {exc}", file=sys.stderr)
+        return 2
 
     def show(line: str) -> None:
         if not args.quiet:
@@ -129,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         try:
-            sim = Simulator(config, on_event=show).start()
+            sim = Simulator(config, on_event=show, city=city).start()
         except OSError as exc:
             print(f"error: cannot listen on {config.host}:{config.port}: {exc}", file=sys.stderr)
             return 1

@@ -81,11 +81,20 @@ class SimConfig:
             raise ValueError(f"autopilot must be 'px4' or 'ardupilot', not {self.autopilot!r}")
         if self.origin not in ("home", "boot"):
             raise ValueError(f"origin must be 'home' or 'boot', not {self.origin!r}")
-        if not self.speedup > 0:
-            raise ValueError(f"speedup must be > 0, not {self.speedup}")
+        if not 0 < self.speedup <= 1000:  # also refuses NaN
+            raise ValueError(f"speedup must be in (0, 1000], not {self.speedup}")
+        if not 0 <= self.port <= 65535:
+            raise ValueError(f"port must be in [0, 65535], not {self.port}")
+        if self.start is not None and not (-90 <= self.start[0] <= 90 and -180 <= self.start[1] <= 180):
+            raise ValueError(f"start must be LAT,LON within [-90, 90] x [-180, 180], not {self.start}")
+        for name in ("report_path", "tlog_path"):
+            path = getattr(self, name)
+            if path is not None and not Path(path).resolve().parent.is_dir():
+                folder = Path(path).resolve().parent
+                raise ValueError(f"{name.replace('_path', '')} {path}: {folder} is not a directory")
         if not 0 < self.physics_dt_s <= 0.1:
             raise ValueError(f"physics_dt_s must be in (0, 0.1], not {self.physics_dt_s}")
-        if self.radius_m < 0:
+        if not self.radius_m >= 0:
             raise ValueError(f"radius_m must be >= 0, not {self.radius_m}")
 
     def resolved_map_path(self) -> Path:

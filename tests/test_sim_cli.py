@@ -59,6 +59,27 @@ def test_missing_map_is_a_clear_error(tmp_path):
     assert out.returncode == 2 and "not found" in out.stderr
 
 
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["--port", "99999"], "port must be in [0, 65535]"),
+        (["--start", "1000,5"], "start must be LAT,LON within"),
+        (["--speedup", "nan"], "speedup must be in (0, 1000]"),
+        (["--report", "/nonexistent/dir/r.json"], "is not a directory"),
+        (["--map", "{bad_map}"], "first line 'not a map' is not 'lat0"),
+        (["--map", "."], "cannot read map"),
+    ],
+)
+def test_bad_options_are_one_line_errors(tmp_path, args, fragment):
+    bad_map = tmp_path / "bad.csv"
+    bad_map.write_text("not a map\n")
+    args = [a.format(bad_map=bad_map) for a in args]
+    out = subprocess.run([sys.executable, "-m", "sim", "--duration", "0.5", *args], capture_output=True,
+                         text=True, timeout=30, env=_env(), cwd=ROOT)
+    assert out.returncode == 2, out.stderr
+    assert fragment in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_cli_serves_and_shuts_down_cleanly_on_signal(sim_map, sim_connect, tmp_path, signum):
     report, tlog = tmp_path / "report.json", tmp_path / "flight.tlog"

@@ -59,3 +59,40 @@ def test_grid3d_lands_on_a_rooftop(tmp_path, capsys):
     assert landed["up_m"] == pytest.approx(roof_m, abs=0.2)
     assert abs(landed["north_m"] - goal_ne[0]) < 1.0 and abs(landed["east_m"] - goal_ne[1]) < 1.0
     assert not report["final"]["armed"]
+
+
+@pytest.mark.flight
+def test_a_slow_planner_does_not_stall_the_link(tmp_path, capsys, monkeypatch):
+    # Planning happens after arming (the classic order). While a slow planner runs, our heartbeat must keep
+    # reaching the autopilot: the sim's tlog records every message it receives, with wall-clock timestamps.
+    import time
+
+    from pymavlink import mavutil
+
+    import motion_planning
+
+    real_make_plan = motion_planning.make_plan
+
+    def slow_make_plan(*args, **kwargs):
+        time.sleep(3.0)
+        return real_make_plan(*args, **kwargs)
+
+    monkeypatch.setattr(motion_planning, "make_plan", slow_make_plan)
+    goal = ned_to_geodetic(LocalNED(*GOAL_NE, 0.0), HOME)
+    tlog = tmp_path / "sim.tlog"
+    config = SimConfig(map_path=ROOT / "colliders.csv", port=0, speedup=20, strict=True, tlog_path=tlog)
+    with Simulator(config) as sim:
+        code = main([
+            "--connection", f"tcp:127.0.0.1:{sim.port}", "--goal_lat", f"{goal.lat_deg:.9f}",
+            "--goal_lon", f"{goal.lon_deg:.9f}", "--log-dir", str(tmp_path), "--timeout", "10",
+        ])
+        report = sim.report()
+    assert code == 0, capsys.readouterr().err
+    assert report["collisions"] == [] and report["landed"] is not None
+    log = mavutil.mavlink_connection(str(tlog))
+    beats = []
+    while (msg := log.recv_match(type="HEARTBEAT")) is not None:
+        if msg.get_srcSystem() == 255:
+            beats.append(msg._timestamp)
+    gaps = [b - a for a, b in zip(beats[:-1], beats[1:])]
+    assert len(beats) >= 5 and max(gaps) < 1.6, f"our heartbeat paused for {max(gaps):.1f} s"

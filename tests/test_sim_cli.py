@@ -68,12 +68,15 @@ def test_missing_map_is_a_clear_error(tmp_path):
         (["--report", "/nonexistent/dir/r.json"], "is not a directory"),
         (["--map", "{bad_map}"], "first line 'not a map' is not 'lat0"),
         (["--map", "."], "cannot read map"),
+        (["--map", "{garbled_map}"], "cannot read map"),
     ],
 )
 def test_bad_options_are_one_line_errors(tmp_path, args, fragment):
     bad_map = tmp_path / "bad.csv"
     bad_map.write_text("not a map\n")
-    args = [a.format(bad_map=bad_map) for a in args]
+    garbled_map = tmp_path / "garbled.csv"
+    garbled_map.write_text("lat0 37.79, lon0 -122.39\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n1,2,x,4,5,6\n")
+    args = [a.format(bad_map=bad_map, garbled_map=garbled_map) for a in args]
     out = subprocess.run([sys.executable, "-m", "sim", "--duration", "0.5", *args], capture_output=True,
                          text=True, timeout=30, env=_env(), cwd=ROOT)
     assert out.returncode == 2, out.stderr

@@ -161,6 +161,11 @@ def test_type_mask_position_and_yaw_only():
     assert vh.TYPE_MASK_POSITION_YAW == 8 + 16 + 32 + 64 + 128 + 256 + 2048
 
 
+def test_type_mask_position_velocity_and_yaw():
+    # bits: ax ay az (64 128 256), yaw rate (2048); position, velocity (feed-forward) and yaw used
+    assert vh.TYPE_MASK_POSITION_VELOCITY_YAW == 64 + 128 + 256 + 2048
+
+
 def test_map_offset_when_autopilot_origin_is_elsewhere():
     # The vehicle stands 120 m north, 40 m west of the map origin, 2 m above home; the EKF booted there.
     where = ned_to_geodetic(LocalNED(120.0, -40.0, 0.0), MAP_ORIGIN)
@@ -390,6 +395,31 @@ def test_px4_offboard_streams_setpoints_before_and_after_the_mode_switch(fake, c
     after = len(ap.of_type("SET_POSITION_TARGET_LOCAL_NED"))
     time.sleep(0.3)
     assert len(ap.of_type("SET_POSITION_TARGET_LOCAL_NED")) == after  # streaming stopped
+
+
+def test_velocity_feed_forward_is_sent_then_dropped_when_not_renewed(fake, connect):
+    ap = fake()
+    v = connect(ap.port, feedforward_timeout_s=0.3)
+    v.wait_for(lambda t: t.has_local, 2.0, "local position")
+    v.start_offboard()
+    v.goto_local(10.0, -5.0, -20.0, yaw_rad=1.0, velocity_ned=(3.0, 4.0, -1.0))
+    time.sleep(0.15)
+    sp = ap.of_type("SET_POSITION_TARGET_LOCAL_NED")[-1]
+    assert sp.type_mask == vh.TYPE_MASK_POSITION_VELOCITY_YAW
+    assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (10.0, -5.0, -20.0, 3.0, 4.0, -1.0)
+    time.sleep(0.5)  # a stalled client: the re-sent setpoint keeps the position, loses the velocity
+    sp = ap.of_type("SET_POSITION_TARGET_LOCAL_NED")[-1]
+    assert sp.type_mask == vh.TYPE_MASK_POSITION_YAW
+    assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (10.0, -5.0, -20.0, 0.0, 0.0, 0.0)
+
+
+def test_local_position_is_requested_at_the_steering_rate(fake, connect):
+    ap = fake()
+    connect(ap.port, telemetry_rate_hz=10.0, local_position_rate_hz=50.0)
+    asks = {int(m.param1): m.param2 for m in ap.of_type("COMMAND_LONG")
+            if m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL}
+    assert asks[mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED] == pytest.approx(1e6 / 50.0)
+    assert asks[mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] == pytest.approx(1e6 / 10.0)
 
 
 def test_ardupilot_guided_takeoff(fake, connect):

@@ -194,7 +194,8 @@ class Vehicle(Protocol):
 
     def takeoff(self, altitude_m: float) -> LocalNED: ...
 
-    def goto_local(self, north_m: float, east_m: float, down_m: float, yaw_rad: float) -> None: ...
+    def goto_local(self, north_m: float, east_m: float, down_m: float, yaw_rad: float,
+                   velocity_ned: tuple[float, float, float] | None = None) -> None: ...
 
     def land(self) -> None: ...
 
@@ -256,31 +257,168 @@ def leg_headings(waypoints: np.ndarray, initial_rad: float = 0.0, min_leg_m: flo
     return headings
 
 
-def turn_angle_rad(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
-    """Angle (rad, 0..pi) between legs a->b and b->c in the horizontal plane; 0 for a degenerate leg."""
-    u, v = np.asarray(b[:2], float) - a[:2], np.asarray(c[:2], float) - b[:2]
-    nu, nv = np.hypot(*u), np.hypot(*v)
-    if nu < 1e-6 or nv < 1e-6:
-        return 0.0
-    return float(math.acos(max(-1.0, min(1.0, float(u @ v) / (nu * nv)))))
+def corner_radius_m(turn_rad: float, corner_cut_m: float, max_tangent_m: float) -> float:
+    """Radius (m) of the arc that rounds a corner turning by ``turn_rad``, tangent to both legs.
 
+    The arc's farthest point from the legs (its middle) is ``r * (1 - cos(turn / 2))`` from each of them, so
+    ``r = corner_cut_m / (1 - cos(turn / 2))`` keeps the rounded path within ``corner_cut_m`` of the planned legs;
+    its tangent points lie ``r * tan(turn / 2)`` from the corner, and a smaller radius is used when that exceeds
+    ``max_tangent_m`` (e.g. half the shorter leg, so neighbouring arcs do not overlap). ``inf`` for a straight
+    line; ``0`` for a full reversal (the path stops there).
 
-def deadband_m(speed_mps: float, turn_rad: float, next_leg_m: float, *, lookahead_s: float = 1.5,
-               corner_cut_m: float = 0.5, min_m: float = 1.0, max_m: float = 15.0) -> float:
-    """How close (horizontally, m) to an intermediate waypoint counts as reached.
-
-    Wide when the heading barely changes, tight at sharp turns: switching ``d`` metres early makes the vehicle
-    cut the corner by at most ``d * sin(turn)``, so ``d <= corner_cut_m / sin(turn)``; ``speed * lookahead_s``
-    keeps it flying through instead of braking; never more than half the next leg nor outside [min_m, max_m].
-
-    >>> deadband_m(10.0, 0.0, 100.0), deadband_m(10.0, math.pi / 2, 100.0), deadband_m(0.0, 0.0, 100.0)
-    (15.0, 1.0, 1.0)
+    >>> round(corner_radius_m(math.pi / 2, 0.5, 100.0), 4), round(corner_radius_m(math.pi / 2, 0.5, 1.0), 4)
+    (1.7071, 1.0)
     """
-    d = min(max(speed_mps, 0.0) * lookahead_s, max_m, 0.5 * next_leg_m)
-    sin_turn = math.sin(min(turn_rad, math.pi / 2))
-    if sin_turn > 1e-9:
-        d = min(d, corner_cut_m / sin_turn)
-    return max(d, min_m)
+    if turn_rad < 1e-6:
+        return math.inf
+    half = min(turn_rad, math.pi) / 2
+    if half >= math.pi / 2 - 1e-9:
+        return 0.0
+    radius = corner_cut_m / (1.0 - math.cos(half))
+    return min(radius, max_tangent_m / math.tan(half))
+
+
+def corner_cut_m(turn_rad: float, radius_m: float) -> float:
+    """How far (m) the middle of an arc of ``radius_m`` rounding a ``turn_rad`` corner lies from both legs.
+
+    >>> round(corner_cut_m(math.pi / 2, 1.0), 4)
+    0.2929
+    """
+    return 0.0 if not math.isfinite(radius_m) else radius_m * (1.0 - math.cos(min(turn_rad, math.pi) / 2))
+
+
+@dataclass(frozen=True)
+class SmoothPath:
+    """The planned polyline with rounded corners and the speed to fly at each point of it (map frame).
+
+    ``points`` (N, 3) are ``[north_m, east_m, altitude_m]``: the straight legs' ends and samples of each corner's
+    arc; ``s_m`` (N,) the arc length at each point; ``segment_speed_mps`` (N-1,) the most each segment allows
+    (cruise, ``sqrt(lateral_accel * r)`` on an arc of radius r, the vertical limit on climbing/descending legs);
+    ``point_speed_mps`` (N,) the speed at each point once braking at ``accel_mps2`` for everything ahead is
+    included (0 at the end); ``waypoint_s_m`` (K,) where each input waypoint counts as passed (the middle of its
+    corner's arc). Build one with :func:`smooth_path`.
+    """
+
+    points: np.ndarray
+    s_m: np.ndarray
+    segment_speed_mps: np.ndarray
+    point_speed_mps: np.ndarray
+    waypoint_s_m: np.ndarray
+    accel_mps2: float
+
+    @property
+    def length_m(self) -> float:
+        return float(self.s_m[-1])
+
+    def _segment(self, s_m: float) -> int:
+        j = int(np.searchsorted(self.s_m, s_m, side="right")) - 1
+        return min(max(j, 0), max(len(self.points) - 2, 0))
+
+    def speed_at(self, s_m: float) -> float:
+        """Speed (m/s) to fly at arc length ``s_m``: the segment's limit, and braking for every limit ahead."""
+        if len(self.points) < 2 or s_m >= self.length_m:
+            return 0.0
+        j = self._segment(s_m)
+        braking = math.sqrt(self.point_speed_mps[j + 1] ** 2 + 2.0 * self.accel_mps2 * max(self.s_m[j + 1] - s_m, 0.0))
+        return float(min(self.segment_speed_mps[j], braking))
+
+    def point_at(self, s_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Position (3,) and unit tangent (3,) at arc length ``s_m`` (clamped to the path)."""
+        if len(self.points) < 2:
+            return self.points[0].copy(), np.zeros(3)
+        s_m = min(max(s_m, 0.0), self.length_m)
+        j = self._segment(s_m)
+        a, b = self.points[j], self.points[j + 1]
+        ds = self.s_m[j + 1] - self.s_m[j]
+        tangent = (b - a) / ds if ds > 1e-12 else np.zeros(3)
+        return a + tangent * (s_m - self.s_m[j]), tangent
+
+    def project(self, position, from_s_m: float = 0.0, window_m: float = 30.0) -> float:
+        """Arc length of the path point closest to ``position`` (3,), searching from ``from_s_m`` to ``window_m``
+        beyond it: forward only, so progress stays monotonic where the path passes near itself."""
+        p = np.asarray(position, float)
+        if len(self.points) < 2:
+            return 0.0
+        best_d, best_s = math.inf, from_s_m
+        for j in range(self._segment(from_s_m), len(self.points) - 1):
+            if self.s_m[j] > from_s_m + window_m:
+                break
+            a, b = self.points[j], self.points[j + 1]
+            ds = self.s_m[j + 1] - self.s_m[j]
+            lowest = 0.0 if ds <= 1e-12 else max(0.0, (from_s_m - self.s_m[j]) / ds)  # not behind from_s_m
+            f = 0.0 if ds <= 1e-12 else min(max(float((p - a) @ (b - a)) / ds**2, lowest), 1.0)
+            d = float(np.linalg.norm(a + f * (b - a) - p))
+            if d < best_d - 1e-9:
+                best_d, best_s = d, float(self.s_m[j] + f * ds)
+        return best_s
+
+
+def smooth_path(waypoints: np.ndarray, *, corner_cut_m: float = 0.5, cruise_mps: float = 10.0,
+                accel_mps2: float = 3.0, lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5,
+                arc_step_m: float = 0.5) -> SmoothPath:
+    """Round each corner of ``waypoints`` (rows ``[north_m, east_m, altitude_m, ...]``) and schedule the speed.
+
+    Each interior waypoint becomes an arc tangent to both legs with the :func:`corner_radius_m` that keeps it within
+    ``corner_cut_m`` of them (tangent points at most half of either leg from the corner), sampled every
+    ``arc_step_m``. Speeds: ``cruise_mps`` on straights, ``sqrt(lateral_accel_mps2 * r)`` on an arc, at most
+    ``vertical_mps`` vertically, braking at ``accel_mps2`` before each slower part and to a stop at the last
+    waypoint.
+
+    >>> p = smooth_path(np.array([[0, 0, 5], [20, 0, 5], [20, 20, 5]]), corner_cut_m=0.5, lateral_accel_mps2=3.0)
+    >>> round(float(p.segment_speed_mps.min()), 3), p.speed_at(0.0), round(p.speed_at(p.length_m - 1.5), 3)
+    (2.263, 10.0, 3.0)
+    """
+    pts = np.asarray(waypoints, float)[:, :3]
+    out: list[np.ndarray] = [pts[0]]
+    radii: list[float] = []  # one per segment of ``out``
+    wp_index = [0]
+    for i in range(1, len(pts) - 1):
+        a, b, c = pts[i - 1], pts[i], pts[i + 1]
+        leg_in, leg_out = float(np.linalg.norm(b - a)), float(np.linalg.norm(c - b))
+        turn = 0.0
+        if leg_in > 1e-9 and leg_out > 1e-9:
+            u_in, u_out = (b - a) / leg_in, (c - b) / leg_out
+            turn = math.acos(max(-1.0, min(1.0, float(u_in @ u_out))))
+        radius = corner_radius_m(turn, corner_cut_m, 0.5 * min(leg_in, leg_out))
+        if not math.isfinite(radius) or radius < 1e-6:
+            out.append(b)
+            radii.append(math.inf)
+            wp_index.append(len(out) - 1)
+            continue
+        tangent_m = radius * math.tan(turn / 2)
+        p1 = b - tangent_m * u_in
+        center = p1 + radius * (u_out - u_in * float(u_in @ u_out)) / math.sin(turn)
+        e1 = (p1 - center) / radius
+        n = max(2, math.ceil(radius * turn / arc_step_m))
+        out.append(p1)
+        radii.append(math.inf)
+        for k in range(1, n + 1):
+            phi = turn * k / n
+            out.append(center + radius * (math.cos(phi) * e1 + math.sin(phi) * u_in))
+            radii.append(radius)
+            if k == n // 2:
+                wp_index.append(len(out) - 1)
+    if len(pts) > 1:
+        out.append(pts[-1])
+        radii.append(math.inf)
+        wp_index.append(len(out) - 1)
+    points = np.array(out, float)
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    s_m = np.concatenate([[0.0], np.cumsum(steps)])
+    seg = np.full(len(steps), float(cruise_mps))
+    for j, (step, radius) in enumerate(zip(steps, radii, strict=True)):
+        if math.isfinite(radius):
+            seg[j] = min(seg[j], math.sqrt(lateral_accel_mps2 * radius))
+        climb = abs(points[j + 1, 2] - points[j, 2])
+        if step > 1e-12 and climb > 1e-9:
+            seg[j] = min(seg[j], vertical_mps * step / climb)
+    speed = np.empty(len(points))
+    speed[0] = seg[0] if len(seg) else 0.0
+    speed[1:-1] = np.minimum(seg[:-1], seg[1:])
+    speed[-1] = 0.0
+    for j in range(len(points) - 2, -1, -1):
+        speed[j] = min(speed[j], math.sqrt(speed[j + 1] ** 2 + 2.0 * accel_mps2 * steps[j]))
+    return SmoothPath(points, s_m, seg, speed, s_m[wp_index], float(accel_mps2))
 
 
 def path_length_m(points: np.ndarray) -> float:
@@ -291,6 +429,12 @@ def path_length_m(points: np.ndarray) -> float:
 
 
 # ------------------------------------------------------------------------------------------------ mission
+#: Remaining path (m) from which the last waypoint is commanded as a plain position (no feed-forward), or earlier
+#: once the vehicle needs all of the remaining path to brake at ``accel_mps2`` (it lags the schedule): at the
+#: default 3 m/s^2 the schedule is down to sqrt(2 * 3 * 1) = 2.4 m/s there, and the autopilot brakes the rest.
+FINAL_APPROACH_M = 1.0
+
+
 class _Abort(Exception):
     """Internal: a timeout or refusal during flight that must end in a landing."""
 
@@ -314,6 +458,15 @@ class Mission:
     vehicle_errors : tuple of exception types
         What vehicle calls raise on refusal/timeout (e.g. ``vehicle.VehicleError``): arming is retried on these
         and a flight that raises them lands. Required: anything else (a bug) propagates as itself.
+    corner_cut_m, cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps : float
+        The flight path (:func:`smooth_path`): corners rounded by arcs at most ``corner_cut_m`` inside the planned
+        legs, flown at ``cruise_mps`` on straights, ``sqrt(lateral_accel_mps2 * r)`` on an arc of radius r, at most
+        ``vertical_mps`` vertically, braking at ``accel_mps2``. Defaults suit the sim's PX4/ArduPilot limits
+        (10 m/s, 4 m/s^2); keep them below the autopilot's own (MPC_XY_VEL_MAX/MPC_ACC_HOR, WPNAV_SPEED/ACCEL).
+    lead_s, velocity_lag_s : float
+        Steering: the command is the path point nearest to where the vehicle will be ``lead_s`` (autopilot time:
+        telemetry and link latency) plus one poll from now, with the scheduled velocity ``velocity_lag_s``
+        further on (the autopilot's velocity loop lags by about that much) as a feed-forward.
     clock, sleep : callables
         Injected for tests (monotonic seconds; sleep seconds).
     """
@@ -326,8 +479,10 @@ class Mission:
                  landing_timeout_s: float = 120.0, disarm_timeout_s: float = 15.0,
                  link_lost_timeout_s: float = 30.0,
                  goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, altitude_tolerance_m: float = 1.0,
-                 corner_cut_m: float = 0.5, lookahead_s: float = 1.5,
-                 poll_s: float = 0.05, track_interval_s: float = 0.2,
+                 corner_cut_m: float = 0.5, cruise_mps: float = 10.0, accel_mps2: float = 3.0,
+                 lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5, lead_s: float = 0.2,
+                 velocity_lag_s: float = 0.15,
+                 poll_s: float = 0.02, track_interval_s: float = 0.2,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
         if not altitude_m > 0:
             raise ValueError(f"altitude_m must be > 0, got {altitude_m}")
@@ -341,7 +496,9 @@ class Mission:
         self.link_lost_timeout_s = link_lost_timeout_s
         self.goal_tolerance_m, self.stop_speed_mps = goal_tolerance_m, stop_speed_mps
         self.altitude_tolerance_m = altitude_tolerance_m
-        self.corner_cut_m, self.lookahead_s = corner_cut_m, lookahead_s
+        self.corner_cut_m, self.cruise_mps, self.accel_mps2 = corner_cut_m, cruise_mps, accel_mps2
+        self.lateral_accel_mps2, self.vertical_mps, self.lead_s = lateral_accel_mps2, vertical_mps, lead_s
+        self.velocity_lag_s = velocity_lag_s
         self.poll_s, self.track_interval_s = poll_s, track_interval_s
         self.clock, self.sleep = clock, sleep
         self.state = MissionState.MANUAL
@@ -546,7 +703,8 @@ class Mission:
         r.waypoints = waypoints
         r.planned_length_m = (math.dist((start.north_m, start.east_m, start.altitude_m), waypoints[0, :3])
                               + path_length_m(waypoints) + waypoints[-1, 2])
-        log.info("planned %d waypoints, %.1f m", len(waypoints), r.planned_length_m)
+        log.info("planned %d waypoints, %.1f m: %s", len(waypoints), r.planned_length_m,
+                 " ".join(f"({n:.1f} N, {e:.1f} E, {a:.1f} m)" for n, e, a in waypoints[:, :3]))
         self._fire(MissionEvent.PLANNED)
         return waypoints
 
@@ -600,25 +758,84 @@ class Mission:
         self._fire(MissionEvent.TAKEOFF_DONE)
 
     def _follow(self, waypoints: np.ndarray) -> None:
+        """Fly the rounded path through ``waypoints`` (see :func:`smooth_path`) and stop at the last one.
+
+        Each poll predicts where the vehicle will be while this command is the autopilot's latest (``lead_s`` of
+        autopilot latency plus one poll, in autopilot time, at its current velocity) and commands the path point
+        nearest to that, with the scheduled velocity along the path as a feed-forward: the autopilot flies the
+        schedule and its position loop only corrects the cross-track error, so it neither brakes at each
+        waypoint nor cuts more than ``corner_cut_m`` (plus its tracking error) off a corner. Near the end (see
+        :data:`FINAL_APPROACH_M`) the command is the last waypoint alone: the autopilot's position loop stops
+        there.
+        """
+        path = smooth_path(waypoints, corner_cut_m=self.corner_cut_m, cruise_mps=self.cruise_mps,
+                           accel_mps2=self.accel_mps2, lateral_accel_mps2=self.lateral_accel_mps2,
+                           vertical_mps=self.vertical_mps)
         last = len(waypoints) - 1
-        for i, wp in enumerate(waypoints):
-            target = self._to_local(wp[0], wp[1], wp[2])
-            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, float(wp[3]))
-            here = self._map_position()
-            leg_m = math.hypot(wp[0] - here.north_m, wp[1] - here.east_m)
-            start_s = self.clock()
-            deadline = start_s + self.leg_timeout_s + leg_m / self.min_speed_mps
-            if i < last:
-                turn = turn_angle_rad(waypoints[i - 1] if i else here_row(here), wp, waypoints[i + 1])
-                next_leg_m = float(np.hypot(*(waypoints[i + 1, :2] - wp[:2])))
-            while not self._reached(wp, i == last, turn if i < last else 0.0, next_leg_m if i < last else 0.0):
-                if self.clock() > deadline:
-                    raise _Abort(self._not_reached(i, wp, i == last, deadline - start_s))
-                self._tick()
+        s, ref_s, heading = 0.0, 0.0, float(waypoints[0, 3])
+        here = self._map_position()
+        i, (deadline, start_s) = 0, self._waypoint_deadline(waypoints[0], (here.north_m, here.east_m))
+        while True:
             p = self._map_position()
-            log.info("waypoint %d/%d reached at (%.1f N, %.1f E, %.1f m)", i, last, p.north_m, p.east_m,
-                     p.altitude_m)
-            self._fire(MissionEvent.GOAL_REACHED if i == last else MissionEvent.WAYPOINT_REACHED)
+            s = path.project((p.north_m, p.east_m, p.altitude_m), s)
+            while i < last and s >= path.waypoint_s_m[i] - 1e-6 and self._on_altitude(path, s, p):
+                log.info("waypoint %d/%d reached at (%.1f N, %.1f E, %.1f m)", i, last, p.north_m, p.east_m,
+                         p.altitude_m)
+                self._fire(MissionEvent.WAYPOINT_REACHED)
+                i += 1
+                deadline, start_s = self._waypoint_deadline(waypoints[i], waypoints[i - 1])
+            if i == last and self._at_goal(waypoints[last]):
+                log.info("waypoint %d/%d reached at (%.1f N, %.1f E, %.1f m)", i, last, p.north_m, p.east_m,
+                         p.altitude_m)
+                self._fire(MissionEvent.GOAL_REACHED)
+                return
+            if self.clock() > deadline:
+                raise _Abort(self._not_reached(i, waypoints[i], i == last, deadline - start_s))
+            # where the vehicle will be, on average, while this command is the latest one the autopilot has
+            t = self.vehicle.telemetry
+            ahead_s = self.lead_s + self._autopilot_rate() * self.poll_s
+            predicted = (p.north_m + t.local_v_north_mps * ahead_s, p.east_m + t.local_v_east_mps * ahead_s,
+                         p.altitude_m - t.local_v_down_mps * ahead_s)
+            ref_s = path.project(predicted, max(s, ref_s))
+            speed = math.sqrt(t.local_v_north_mps**2 + t.local_v_east_mps**2 + t.local_v_down_mps**2)
+            remaining_m = path.length_m - s
+            if remaining_m <= max(FINAL_APPROACH_M, speed**2 / (2 * self.accel_mps2)):
+                ref_s = path.length_m  # the autopilot's position loop brakes to the goal from here
+            position, _ = path.point_at(ref_s)
+            # the velocity wanted velocity_lag_s later: the autopilot's velocity loop takes about that long to follow
+            ff_s = min(ref_s + speed * self.velocity_lag_s, path.length_m)
+            tangent = path.point_at(ff_s)[1]
+            if math.hypot(tangent[0], tangent[1]) > 0.1:
+                heading = math.atan2(tangent[1], tangent[0]) % (2 * math.pi)
+            target = self._to_local(*position)
+            if ref_s >= path.length_m:
+                self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading)
+            else:
+                # speeding up by at most accel_mps2 over the prediction: a small along-track velocity error leaves
+                # the autopilot's acceleration limit free to correct the cross-track one (e.g. leaving an arc)
+                velocity = tangent * min(path.speed_at(ff_s), speed + self.accel_mps2 * max(ahead_s, 0.1))
+                self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading,
+                                        velocity_ned=(float(velocity[0]), float(velocity[1]), float(-velocity[2])))
+            self._tick()
+
+    def _autopilot_rate(self) -> float:
+        """Autopilot seconds per second of our clock since the takeoff command: a sped-up simulator's speedup,
+        1 for a real autopilot or one that reports no clock."""
+        elapsed = self.clock() - self._takeoff_s
+        autopilot = self._autopilot_time_s() - self._takeoff_autopilot_s
+        if not (elapsed > 0.2 and math.isfinite(autopilot) and autopilot > 0):
+            return 1.0
+        return autopilot / elapsed
+
+    def _waypoint_deadline(self, wp, previous) -> tuple[float, float]:
+        """``(deadline, now)`` for reaching ``wp`` from now: ``leg_timeout_s`` + the horizontal leg from
+        ``previous`` (north, east, ...) at ``min_speed_mps``."""
+        now = self.clock()
+        leg_m = math.hypot(wp[0] - previous[0], wp[1] - previous[1])
+        return now + self.leg_timeout_s + leg_m / self.min_speed_mps, now
+
+    def _on_altitude(self, path: SmoothPath, s_m: float, p: LocalNED) -> bool:
+        return abs(path.point_at(s_m)[0][2] - p.altitude_m) <= self.altitude_tolerance_m
 
     def _not_reached(self, i: int, wp: np.ndarray, is_last: bool, timeout_s: float) -> str:
         """Why waypoint ``i`` timed out: how far off the vehicle is and how fast it still moves."""
@@ -634,18 +851,16 @@ class Mission:
                     f"and <= {self.stop_speed_mps:g} m/s)")
         return why
 
-    def _reached(self, wp: np.ndarray, is_last: bool, turn_rad: float, next_leg_m: float) -> bool:
+    def _at_goal(self, wp: np.ndarray) -> bool:
+        """At the last waypoint ``wp``: within ``goal_tolerance_m`` horizontally, ``altitude_tolerance_m`` vertically,
+        and slower than ``stop_speed_mps``."""
         p = self._map_position()
         t = self.vehicle.telemetry
         horizontal = math.hypot(wp[0] - p.north_m, wp[1] - p.east_m)
         vertical = abs(wp[2] - p.altitude_m)
         speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
-        if is_last:
-            return (horizontal <= self.goal_tolerance_m and vertical <= self.altitude_tolerance_m
-                    and speed <= self.stop_speed_mps)
-        band = deadband_m(speed, turn_rad, next_leg_m, lookahead_s=self.lookahead_s,
-                          corner_cut_m=self.corner_cut_m)
-        return horizontal <= band and vertical <= self.altitude_tolerance_m
+        return (horizontal <= self.goal_tolerance_m and vertical <= self.altitude_tolerance_m
+                and speed <= self.stop_speed_mps)
 
     def _land(self) -> None:
         """Land here, wait for touchdown, disarm, release control (LANDING -> DISARMING -> MANUAL)."""
@@ -725,7 +940,3 @@ class Mission:
         p = self._map_position()
         return f"landed at ({p.north_m:.1f} N, {p.east_m:.1f} E) and disarmed"
 
-
-def here_row(p: LocalNED) -> np.ndarray:
-    """A waypoint-shaped row ``[north, east, altitude, 0]`` at map position ``p``."""
-    return np.array([p.north_m, p.east_m, p.altitude_m, 0.0])

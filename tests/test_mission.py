@@ -59,27 +59,79 @@ def test_leg_headings_follow_each_leg():
     assert m.leg_headings(wps) == pytest.approx([math.pi / 2, math.pi / 2, math.pi, math.pi])
 
 
-def test_turn_angle():
-    a, b = np.array([0.0, 0.0]), np.array([10.0, 0.0])
-    assert m.turn_angle_rad(a, b, np.array([20.0, 0.0])) == pytest.approx(0.0)
-    assert m.turn_angle_rad(a, b, np.array([10.0, 5.0])) == pytest.approx(math.pi / 2)
-    assert m.turn_angle_rad(a, b, np.array([0.0, 0.0])) == pytest.approx(math.pi)
+def test_corner_radius_keeps_the_arc_within_the_cut():
+    # 90 deg: r = cut / (1 - cos 45) = 0.5 / (1 - 1/sqrt 2) = 1 + 1/sqrt 2; tangent points r * tan 45 = r away
+    assert m.corner_radius_m(math.pi / 2, 0.5, 100.0) == pytest.approx(1.0 + 1.0 / math.sqrt(2))
+    # 60 deg: r = 0.5 / (1 - cos 30) = 2 + sqrt 3
+    assert m.corner_radius_m(math.pi / 3, 0.5, 100.0) == pytest.approx(2.0 + math.sqrt(3))
+    # a 2 m leg allows tangent points 1 m out: r = 1 / tan 45 = 1
+    assert m.corner_radius_m(math.pi / 2, 0.5, 1.0) == pytest.approx(1.0)
+    assert m.corner_radius_m(0.0, 0.5, 100.0) == math.inf  # straight on
+    assert m.corner_radius_m(math.pi, 0.5, 100.0) == 0.0  # reversal: stop at the corner
+    for turn_deg in (10, 45, 90, 135, 170):
+        turn = math.radians(turn_deg)
+        assert m.corner_cut_m(turn, m.corner_radius_m(turn, 0.5, 1e6)) == pytest.approx(0.5)
+        assert m.corner_cut_m(turn, m.corner_radius_m(turn, 0.5, 2.0)) <= 0.5 + 1e-12
 
 
-def test_deadband_wide_on_straights_tight_at_turns():
-    straight = m.deadband_m(8.0, math.radians(2), 100.0)
-    gentle = m.deadband_m(8.0, math.radians(20), 100.0)
-    right_angle = m.deadband_m(8.0, math.radians(90), 100.0)
-    hairpin = m.deadband_m(8.0, math.radians(170), 100.0)
-    assert straight > gentle > right_angle == hairpin == 1.0
-    # corner cut bound: switching d before the corner cuts it by at most d*sin(turn)
-    assert gentle * math.sin(math.radians(20)) <= 0.5 + 1e-9
+def _distance_to_polyline(point, corners):
+    best = math.inf
+    for a, b in zip(corners[:-1], corners[1:], strict=True):
+        f = min(max(float((point - a) @ (b - a)) / float((b - a) @ (b - a)), 0.0), 1.0)
+        best = min(best, float(np.linalg.norm(a + f * (b - a) - point)))
+    return best
 
 
-def test_deadband_grows_with_speed_and_respects_the_next_leg():
-    assert m.deadband_m(2.0, 0.0, 100.0) < m.deadband_m(6.0, 0.0, 100.0)
-    assert m.deadband_m(10.0, 0.0, 4.0) == 2.0  # at most half of the next leg
-    assert m.deadband_m(0.0, 0.0, 100.0) == 1.0  # floor
+L_PATH = np.array([[0.0, 0.0, 5.0], [20.0, 0.0, 5.0], [20.0, 20.0, 5.0]])  # 20 m north, then 20 m east
+
+
+def test_smooth_path_rounds_a_right_angle_by_the_cut():
+    p = m.smooth_path(L_PATH, corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
+    r = 1.0 + 1.0 / math.sqrt(2)
+    # tangent points r = 1.707 m before and after the corner; the arc's middle is (19.5, 0.5): 0.5 m off both legs
+    assert p.points[1] == pytest.approx([20.0 - r, 0.0, 5.0])
+    assert p.points[-2] == pytest.approx([20.0, r, 5.0])
+    middle = p.points[len(p.points) // 2]
+    assert middle == pytest.approx([19.5, 0.5, 5.0])
+    assert max(_distance_to_polyline(q, L_PATH) for q in p.points) == pytest.approx(0.5)
+    # length: two straights of 20 - r and six chords of 2 r sin(7.5 deg) on the quarter circle
+    assert p.length_m == pytest.approx(2 * (20.0 - r) + 6 * 2 * r * math.sin(math.radians(7.5)))
+    assert p.waypoint_s_m == pytest.approx([0.0, 20.0 - r + 3 * 2 * r * math.sin(math.radians(7.5)), p.length_m])
+
+
+def test_smooth_path_speed_schedule():
+    p = m.smooth_path(L_PATH, corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
+    r = 1.0 + 1.0 / math.sqrt(2)
+    v_turn = math.sqrt(3.0 * r)  # 2.263 m/s: 3 m/s^2 sideways on the arc
+    assert p.speed_at(0.0) == 10.0  # cruise: braking from 18.3 m out would allow 10.7 m/s
+    assert p.speed_at(20.0 - r - 5.0) == pytest.approx(math.sqrt(v_turn**2 + 2 * 3.0 * 5.0))  # braking, 5 m out
+    assert p.speed_at(p.waypoint_s_m[1]) == pytest.approx(v_turn)  # on the arc
+    assert p.speed_at(p.length_m - 1.5) == pytest.approx(3.0)  # stopping at the goal: sqrt(2 * 3 * 1.5)
+    assert p.speed_at(p.length_m) == 0.0
+
+
+def test_smooth_path_limits_the_vertical_speed_and_keeps_collinear_points():
+    climb = m.smooth_path(np.array([[0.0, 0.0, 0.0], [40.0, 0.0, 30.0]]), vertical_mps=1.5, cruise_mps=10.0)
+    assert climb.segment_speed_mps == pytest.approx([1.5 * 50.0 / 30.0])  # 30 m up in 50 m: 2.5 m/s along it
+    straight = m.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [30.0, 0.0, 5.0]]))
+    assert straight.points.tolist() == [[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [30.0, 0.0, 5.0]]
+    assert straight.waypoint_s_m.tolist() == [0.0, 10.0, 30.0]
+
+
+def test_point_at_and_project():
+    p = m.smooth_path(L_PATH)
+    position, tangent = p.point_at(10.0)
+    assert position == pytest.approx([10.0, 0.0, 5.0]) and tangent == pytest.approx([1.0, 0.0, 0.0])
+    assert p.point_at(1e9)[0] == pytest.approx([20.0, 20.0, 5.0])
+    assert p.project((10.0, 3.0, 5.0)) == pytest.approx(10.0)  # 3 m off the first leg, 10 m along
+    assert p.project((19.5, 0.5, 5.0)) == pytest.approx(p.waypoint_s_m[1])
+    assert p.project((25.0, 20.0, 5.0)) == pytest.approx(p.length_m)  # past the end: the end
+    # forward only, and within the window: from 30 m on, the start is not considered; 5 m on is out of reach
+    assert p.project((0.0, 0.0, 5.0), from_s_m=30.0) == pytest.approx(30.0)
+    # a vehicle that fell back behind from_s_m on a straight stays there: no jump to a later segment
+    assert p.project((5.0, 0.0, 5.0), from_s_m=6.0) == pytest.approx(6.0)
+    # segments starting within the window count whole: (20, 15) is closest to the end of the first straight
+    assert p.project((20.0, 15.0, 5.0), from_s_m=0.0, window_m=5.0) == pytest.approx(20.0 - 1.0 - 1.0 / math.sqrt(2))
 
 
 def test_path_length():
@@ -143,6 +195,8 @@ class FakeVehicle:
         self.setpoint = None
         self.calls: list[str] = []
         self.gotos: list[tuple[float, float, float, float]] = []
+        self.velocities: list[tuple[float, float, float] | None] = []
+        self.feedforward = None
         self.fail_on = {}  # method name -> exception to raise (once, or always if "always" in the key)
 
     def _maybe_fail(self, name):
@@ -177,10 +231,12 @@ class FakeVehicle:
         self.mode, self.setpoint = "offboard", (t.north_m, t.east_m, t.down_m - altitude_m)
         return LocalNED(*self.setpoint)
 
-    def goto_local(self, north_m, east_m, down_m, yaw_rad):
+    def goto_local(self, north_m, east_m, down_m, yaw_rad, velocity_ned=None):
         self._maybe_fail("goto_local")
         self.gotos.append((north_m, east_m, down_m, yaw_rad))
+        self.velocities.append(velocity_ned)
         self.mode, self.setpoint = "offboard", (north_m, east_m, down_m)
+        self.feedforward = velocity_ned
 
     def land(self):
         self._maybe_fail("land")
@@ -207,7 +263,16 @@ class FakeVehicle:
             delta = target - here
             dist = float(np.linalg.norm(delta))
             step = min(dist, self.speed_mps * dt)
-            if dist > 0:
+            if self.feedforward is not None:  # like PX4: feed-forward + 1/s x position error, capped
+                velocity = np.array(self.feedforward) + delta
+                if not self.climbs:
+                    velocity[2] = 0.0
+                speed = float(np.linalg.norm(velocity))
+                if speed > self.speed_mps:
+                    velocity *= self.speed_mps / speed
+                t.north_m, t.east_m, t.down_m = here + velocity * dt
+                t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps = velocity
+            elif dist > 0:
                 velocity = delta / dist * step / dt
                 t.north_m, t.east_m, t.down_m = here + delta / dist * step
                 t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps = velocity
@@ -261,7 +326,7 @@ def test_full_mission(clock):
     assert result.landing_error_m < 0.3
     assert result.planned_length_m == pytest.approx(10 + 100 + 10)
     # flown: the last metre of the climb blends into the first leg (altitude tolerance 1 m) and the 90 deg
-    # corner is cut by at most 0.5 m: shorter than planned by a couple of metres, never longer
+    # corner is rounded by an arc 0.5 m inside it: shorter than planned by a couple of metres, never longer
     assert 117.0 <= result.flown_length_m <= 120.0
     assert result.flight_time_s == pytest.approx(10 / 5.0 + 100 / 5.0 + 10 / 1.5, abs=0.5)  # climb, legs, land
     assert result.track.shape[1] == 4 and result.track[-1, 1:3] == pytest.approx([60.0, 40.0], abs=0.3)
@@ -681,8 +746,8 @@ def test_hovering_half_a_metre_off_the_goal_lands_there_after_the_leg_timeout(cl
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     real_goto = v.goto_local
 
-    def biased_goto(north_m, east_m, down_m, yaw_rad):
-        real_goto(north_m, east_m + (0.5 if len(v.gotos) == 3 else 0.0), down_m, yaw_rad)
+    def biased_goto(north_m, east_m, down_m, yaw_rad, velocity_ned=None):  # the goal comes without a velocity
+        real_goto(north_m, east_m + (0.5 if velocity_ned is None else 0.0), down_m, yaw_rad, velocity_ned)
 
     v.goto_local = biased_goto
     with pytest.raises(m.FlightAborted, match=r"waypoint 3 \(60\.0 N, 40\.0 E, 10\.0 m\) not reached in time "
@@ -797,3 +862,25 @@ def test_600_m_mission_time_against_sim(sim_start):
     ideal_s = (report["distance_flown_m"] - 20.0) / cruise_mps + 10.0 / climb_mps + 10.0 / descent_mps
     assert result.completed and not report["collisions"]
     assert report["airborne_time_s"] <= 1.3 * ideal_s
+
+
+@pytest.mark.flight
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_corners_are_flown_round_within_a_metre_of_the_legs_against_sim(sim_start, autopilot):
+    # two right angles round the building (N 25..35, E -5..5): 15 m east, 45 m north, 30 m west, at 10 m
+    def plan(n, e):
+        return np.array([[n, e, 10.0, 0.0], [0.0, 15.0, 10.0, 0.0], [45.0, 15.0, 10.0, 0.0],
+                         [45.0, -15.0, 10.0, 0.0]])
+
+    sim = sim_start(strict=True, autopilot=autopilot, speedup=5.0)
+    result = fly(sim, plan, track_interval_s=0.02)
+    report = sim.stop()
+    assert result.completed and not report["collisions"]
+    legs = result.waypoints[:, :3]
+    at_altitude = result.track[np.abs(result.track[:, 3] - 10.0) < 0.5, 1:4]
+    deviation = max(_distance_to_polyline(np.array([n, e, 10.0]), legs) for n, e, _ in at_altitude)
+    # the arcs are 0.5 m inside each corner (corner_cut_m); tracking adds the rest
+    assert deviation <= 1.0
+    assert report["landed"]["north_m"] == pytest.approx(45.0, abs=1.0)
+    assert report["landed"]["east_m"] == pytest.approx(-15.0, abs=1.0)
+    print(f"\n{autopilot}: max deviation from the legs {deviation:.2f} m, airborne {report['airborne_time_s']:.1f} s")

@@ -110,7 +110,8 @@ def save_plan_figure(
         if track_ne is not None:
             draw_track(ax, track_ne)
         ax.legend(loc="upper right", fontsize=8)
-        ax.set_title(title or f"{plan.planner} plan at {altitude_m:g} m, safety {safety_m:g} m")
+        flown = " and the flown track" if track_ne is not None else ""
+        ax.set_title(title or f"{plan.planner} plan{flown} at {altitude_m:g} m, safety {safety_m:g} m")
         fig.tight_layout()
         fig.savefig(path)
     finally:

@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 import motion_planning as mp
-from sim import FaultConfig, SimConfig, Simulator, write_colliders
+from sim import FaultConfig, Simulator, write_colliders
 
 pytestmark = pytest.mark.flight
 
@@ -96,24 +96,17 @@ def watchdog():
 
 
 @pytest.fixture
-def start_sim():
-    """``start_sim(**SimConfig fields) -> Simulator``: strict, ephemeral port, stopped (and checked) at teardown."""
-    sims: list[Simulator] = []
+def start_sim(sim_start):
+    """``start_sim(**SimConfig fields) -> Simulator``: conftest's ``sim_start`` (ephemeral port, stopped and
+    checked at teardown) with this file's defaults: --strict, the project map, ``SPEEDUP``."""
 
     def start(**kwargs) -> Simulator:
-        kwargs.setdefault("port", 0)
-        kwargs.setdefault("host", "127.0.0.1")
         kwargs.setdefault("strict", True)
         kwargs.setdefault("speedup", SPEEDUP)
         kwargs.setdefault("map_path", mp.DEFAULT_MAP)
-        sim = Simulator(SimConfig(**kwargs)).start()
-        sims.append(sim)
-        return sim
+        return sim_start(**kwargs)
 
-    yield start
-    for sim in sims:
-        sim.stop()
-        assert sim.error is None, sim.error
+    return start
 
 
 def fly(sim: Simulator, tmp_path: Path, *args: str, goal=GOAL_NEAR) -> int:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+import flight_path as fp
 import mission as m
 from frames import Geodetic, LocalNED
 from mission import MissionEvent as E
@@ -56,22 +57,22 @@ def test_failed_is_terminal():
 def test_leg_headings_follow_each_leg():
     wps = np.array([[0, 0, 5, 0], [0, 10, 5, 0], [-10, 10, 5, 0], [-10, 10.1, 5, 0]], float)
     # east (pi/2), east, south (pi), and a 0.1 m leg keeps south
-    assert m.leg_headings(wps) == pytest.approx([math.pi / 2, math.pi / 2, math.pi, math.pi])
+    assert fp.leg_headings(wps) == pytest.approx([math.pi / 2, math.pi / 2, math.pi, math.pi])
 
 
 def test_corner_radius_keeps_the_arc_within_the_cut():
     # 90 deg: r = cut / (1 - cos 45) = 0.5 / (1 - 1/sqrt 2) = 1 + 1/sqrt 2; tangent points r * tan 45 = r away
-    assert m.corner_radius_m(math.pi / 2, 0.5, 100.0) == pytest.approx(1.0 + 1.0 / math.sqrt(2))
+    assert fp.corner_radius_m(math.pi / 2, 0.5, 100.0) == pytest.approx(1.0 + 1.0 / math.sqrt(2))
     # 60 deg: r = 0.5 / (1 - cos 30) = 2 + sqrt 3
-    assert m.corner_radius_m(math.pi / 3, 0.5, 100.0) == pytest.approx(2.0 + math.sqrt(3))
+    assert fp.corner_radius_m(math.pi / 3, 0.5, 100.0) == pytest.approx(2.0 + math.sqrt(3))
     # a 2 m leg allows tangent points 1 m out: r = 1 / tan 45 = 1
-    assert m.corner_radius_m(math.pi / 2, 0.5, 1.0) == pytest.approx(1.0)
-    assert m.corner_radius_m(0.0, 0.5, 100.0) == math.inf  # straight on
-    assert m.corner_radius_m(math.pi, 0.5, 100.0) == 0.0  # reversal: stop at the corner
+    assert fp.corner_radius_m(math.pi / 2, 0.5, 1.0) == pytest.approx(1.0)
+    assert fp.corner_radius_m(0.0, 0.5, 100.0) == math.inf  # straight on
+    assert fp.corner_radius_m(math.pi, 0.5, 100.0) == 0.0  # reversal: stop at the corner
     for turn_deg in (10, 45, 90, 135, 170):
         turn = math.radians(turn_deg)
-        assert m.corner_cut_m(turn, m.corner_radius_m(turn, 0.5, 1e6)) == pytest.approx(0.5)
-        assert m.corner_cut_m(turn, m.corner_radius_m(turn, 0.5, 2.0)) <= 0.5 + 1e-12
+        assert fp.corner_cut_m(turn, fp.corner_radius_m(turn, 0.5, 1e6)) == pytest.approx(0.5)
+        assert fp.corner_cut_m(turn, fp.corner_radius_m(turn, 0.5, 2.0)) <= 0.5 + 1e-12
 
 
 def _distance_to_polyline(point, corners):
@@ -86,7 +87,7 @@ L_PATH = np.array([[0.0, 0.0, 5.0], [20.0, 0.0, 5.0], [20.0, 20.0, 5.0]])  # 20 
 
 
 def test_smooth_path_rounds_a_right_angle_by_the_cut():
-    p = m.smooth_path(L_PATH, corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
+    p = fp.smooth_path(L_PATH, corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
     r = 1.0 + 1.0 / math.sqrt(2)
     # tangent points r = 1.707 m before and after the corner; the arc's middle is (19.5, 0.5): 0.5 m off both legs
     assert p.points[1] == pytest.approx([20.0 - r, 0.0, 5.0])
@@ -100,7 +101,7 @@ def test_smooth_path_rounds_a_right_angle_by_the_cut():
 
 
 def test_smooth_path_speed_schedule():
-    p = m.smooth_path(L_PATH, corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
+    p = fp.smooth_path(L_PATH, corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
     r = 1.0 + 1.0 / math.sqrt(2)
     v_turn = math.sqrt(3.0 * r)  # 2.263 m/s: 3 m/s^2 sideways on the arc
     assert p.speed_at(0.0) == 10.0  # cruise: braking from 18.3 m out would allow 10.7 m/s
@@ -111,15 +112,15 @@ def test_smooth_path_speed_schedule():
 
 
 def test_smooth_path_limits_the_vertical_speed_and_keeps_collinear_points():
-    climb = m.smooth_path(np.array([[0.0, 0.0, 0.0], [40.0, 0.0, 30.0]]), vertical_mps=1.5, cruise_mps=10.0)
+    climb = fp.smooth_path(np.array([[0.0, 0.0, 0.0], [40.0, 0.0, 30.0]]), vertical_mps=1.5, cruise_mps=10.0)
     assert climb.segment_speed_mps == pytest.approx([1.5 * 50.0 / 30.0])  # 30 m up in 50 m: 2.5 m/s along it
-    straight = m.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [30.0, 0.0, 5.0]]))
+    straight = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [30.0, 0.0, 5.0]]))
     assert straight.points.tolist() == [[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [30.0, 0.0, 5.0]]
     assert straight.waypoint_s_m.tolist() == [0.0, 10.0, 30.0]
 
 
 def test_point_at_and_project():
-    p = m.smooth_path(L_PATH)
+    p = fp.smooth_path(L_PATH)
     position, tangent = p.point_at(10.0)
     assert position == pytest.approx([10.0, 0.0, 5.0]) and tangent == pytest.approx([1.0, 0.0, 0.0])
     assert p.point_at(1e9)[0] == pytest.approx([20.0, 20.0, 5.0])
@@ -135,7 +136,7 @@ def test_point_at_and_project():
 
 
 def test_path_length():
-    assert m.path_length_m(np.array([[0, 0, 0], [3, 4, 0], [3, 4, 12]])) == pytest.approx(17.0)
+    assert fp.path_length_m(np.array([[0, 0, 0], [3, 4, 0], [3, 4, 12]])) == pytest.approx(17.0)
 
 
 # ---------------------------------------------------------------------------------------- fake vehicle

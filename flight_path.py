@@ -1,0 +1,206 @@
+"""The flight path: planned waypoints -> a path the vehicle can fly without stopping at every corner.
+
+Pure geometry in the map frame (metres, ``north, east, altitude``), no vehicle and no clock; ``mission.py`` steers
+along it. Each intermediate waypoint becomes an arc tangent to both legs whose middle stays ``corner_cut_m``
+inside the corner, and the path carries a speed schedule: cruise on straights, ``sqrt(a_lat * r)`` on an arc of
+radius ``r``, braking at ``accel_mps2`` before every slower part and before the goal.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def leg_headings(waypoints: np.ndarray, initial_rad: float = 0.0, min_leg_m: float = 0.5) -> np.ndarray:
+    """Heading (rad, from north, clockwise) to fly at each waypoint: along the leg that arrives there.
+
+    The first waypoint takes the first leg's heading (turn on the spot before leaving); legs shorter than
+    ``min_leg_m`` keep the previous heading.
+
+    >>> np.round(leg_headings(np.array([[0, 0, 5, 0], [10, 0, 5, 0], [10, 10, 5, 0]])), 3).tolist()
+    [0.0, 0.0, 1.571]
+    """
+    headings = np.empty(len(waypoints))
+    previous = initial_rad
+    for i in range(len(waypoints)):
+        j = max(i, 1)
+        if j < len(waypoints):
+            d_north, d_east = waypoints[j, :2] - waypoints[j - 1, :2]
+            if math.hypot(d_north, d_east) >= min_leg_m:
+                previous = math.atan2(d_east, d_north) % (2 * math.pi)
+        headings[i] = previous
+    return headings
+
+
+def corner_radius_m(turn_rad: float, corner_cut_m: float, max_tangent_m: float) -> float:
+    """Radius (m) of the arc that rounds a corner turning by ``turn_rad``, tangent to both legs.
+
+    The arc's farthest point from the legs (its middle) is ``r * (1 - cos(turn / 2))`` from each of them, so
+    ``r = corner_cut_m / (1 - cos(turn / 2))`` keeps the rounded path within ``corner_cut_m`` of the planned legs;
+    its tangent points lie ``r * tan(turn / 2)`` from the corner, and a smaller radius is used when that exceeds
+    ``max_tangent_m`` (e.g. half the shorter leg, so neighbouring arcs do not overlap). ``inf`` for a straight
+    line; ``0`` for a full reversal (the path stops there).
+
+    >>> round(corner_radius_m(math.pi / 2, 0.5, 100.0), 4), round(corner_radius_m(math.pi / 2, 0.5, 1.0), 4)
+    (1.7071, 1.0)
+    """
+    if turn_rad < 1e-6:
+        return math.inf
+    half = min(turn_rad, math.pi) / 2
+    if half >= math.pi / 2 - 1e-9:
+        return 0.0
+    radius = corner_cut_m / (1.0 - math.cos(half))
+    return min(radius, max_tangent_m / math.tan(half))
+
+
+def corner_cut_m(turn_rad: float, radius_m: float) -> float:
+    """How far (m) the middle of an arc of ``radius_m`` rounding a ``turn_rad`` corner lies from both legs.
+
+    >>> round(corner_cut_m(math.pi / 2, 1.0), 4)
+    0.2929
+    """
+    return 0.0 if not math.isfinite(radius_m) else radius_m * (1.0 - math.cos(min(turn_rad, math.pi) / 2))
+
+
+@dataclass(frozen=True)
+class SmoothPath:
+    """The planned polyline with rounded corners and the speed to fly at each point of it (map frame).
+
+    ``points`` (N, 3) are ``[north_m, east_m, altitude_m]``: the straight legs' ends and samples of each corner's
+    arc; ``s_m`` (N,) the arc length at each point; ``segment_speed_mps`` (N-1,) the most each segment allows
+    (cruise, ``sqrt(lateral_accel * r)`` on an arc of radius r, the vertical limit on climbing/descending legs);
+    ``point_speed_mps`` (N,) the speed at each point once braking at ``accel_mps2`` for everything ahead is
+    included (0 at the end); ``waypoint_s_m`` (K,) where each input waypoint counts as passed (the middle of its
+    corner's arc). Build one with :func:`smooth_path`.
+    """
+
+    points: np.ndarray
+    s_m: np.ndarray
+    segment_speed_mps: np.ndarray
+    point_speed_mps: np.ndarray
+    waypoint_s_m: np.ndarray
+    accel_mps2: float
+
+    @property
+    def length_m(self) -> float:
+        return float(self.s_m[-1])
+
+    def _segment(self, s_m: float) -> int:
+        j = int(np.searchsorted(self.s_m, s_m, side="right")) - 1
+        return min(max(j, 0), max(len(self.points) - 2, 0))
+
+    def speed_at(self, s_m: float) -> float:
+        """Speed (m/s) to fly at arc length ``s_m``: the segment's limit, and braking for every limit ahead."""
+        if len(self.points) < 2 or s_m >= self.length_m:
+            return 0.0
+        j = self._segment(s_m)
+        braking = math.sqrt(self.point_speed_mps[j + 1] ** 2 + 2.0 * self.accel_mps2 * max(self.s_m[j + 1] - s_m, 0.0))
+        return float(min(self.segment_speed_mps[j], braking))
+
+    def point_at(self, s_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Position (3,) and unit tangent (3,) at arc length ``s_m`` (clamped to the path)."""
+        if len(self.points) < 2:
+            return self.points[0].copy(), np.zeros(3)
+        s_m = min(max(s_m, 0.0), self.length_m)
+        j = self._segment(s_m)
+        a, b = self.points[j], self.points[j + 1]
+        ds = self.s_m[j + 1] - self.s_m[j]
+        tangent = (b - a) / ds if ds > 1e-12 else np.zeros(3)
+        return a + tangent * (s_m - self.s_m[j]), tangent
+
+    def project(self, position, from_s_m: float = 0.0, window_m: float = 30.0) -> float:
+        """Arc length of the path point closest to ``position`` (3,), searching from ``from_s_m`` to ``window_m``
+        beyond it: forward only, so progress stays monotonic where the path passes near itself."""
+        p = np.asarray(position, float)
+        if len(self.points) < 2:
+            return 0.0
+        best_d, best_s = math.inf, from_s_m
+        for j in range(self._segment(from_s_m), len(self.points) - 1):
+            if self.s_m[j] > from_s_m + window_m:
+                break
+            a, b = self.points[j], self.points[j + 1]
+            ds = self.s_m[j + 1] - self.s_m[j]
+            lowest = 0.0 if ds <= 1e-12 else max(0.0, (from_s_m - self.s_m[j]) / ds)  # not behind from_s_m
+            f = 0.0 if ds <= 1e-12 else min(max(float((p - a) @ (b - a)) / ds**2, lowest), 1.0)
+            d = float(np.linalg.norm(a + f * (b - a) - p))
+            if d < best_d - 1e-9:
+                best_d, best_s = d, float(self.s_m[j] + f * ds)
+        return best_s
+
+
+def smooth_path(waypoints: np.ndarray, *, corner_cut_m: float = 0.5, cruise_mps: float = 10.0,
+                accel_mps2: float = 3.0, lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5,
+                arc_step_m: float = 0.5) -> SmoothPath:
+    """Round each corner of ``waypoints`` (rows ``[north_m, east_m, altitude_m, ...]``) and schedule the speed.
+
+    Each interior waypoint becomes an arc tangent to both legs with the :func:`corner_radius_m` that keeps it within
+    ``corner_cut_m`` of them (tangent points at most half of either leg from the corner), sampled every
+    ``arc_step_m``. Speeds: ``cruise_mps`` on straights, ``sqrt(lateral_accel_mps2 * r)`` on an arc, at most
+    ``vertical_mps`` vertically, braking at ``accel_mps2`` before each slower part and to a stop at the last
+    waypoint.
+
+    >>> p = smooth_path(np.array([[0, 0, 5], [20, 0, 5], [20, 20, 5]]), corner_cut_m=0.5, lateral_accel_mps2=3.0)
+    >>> round(float(p.segment_speed_mps.min()), 3), p.speed_at(0.0), round(p.speed_at(p.length_m - 1.5), 3)
+    (2.263, 10.0, 3.0)
+    """
+    pts = np.asarray(waypoints, float)[:, :3]
+    out: list[np.ndarray] = [pts[0]]
+    radii: list[float] = []  # one per segment of ``out``
+    wp_index = [0]
+    for i in range(1, len(pts) - 1):
+        a, b, c = pts[i - 1], pts[i], pts[i + 1]
+        leg_in, leg_out = float(np.linalg.norm(b - a)), float(np.linalg.norm(c - b))
+        turn = 0.0
+        if leg_in > 1e-9 and leg_out > 1e-9:
+            u_in, u_out = (b - a) / leg_in, (c - b) / leg_out
+            turn = math.acos(max(-1.0, min(1.0, float(u_in @ u_out))))
+        radius = corner_radius_m(turn, corner_cut_m, 0.5 * min(leg_in, leg_out))
+        if not math.isfinite(radius) or radius < 1e-6:
+            out.append(b)
+            radii.append(math.inf)
+            wp_index.append(len(out) - 1)
+            continue
+        tangent_m = radius * math.tan(turn / 2)
+        p1 = b - tangent_m * u_in
+        center = p1 + radius * (u_out - u_in * float(u_in @ u_out)) / math.sin(turn)
+        e1 = (p1 - center) / radius
+        n = max(2, math.ceil(radius * turn / arc_step_m))
+        out.append(p1)
+        radii.append(math.inf)
+        for k in range(1, n + 1):
+            phi = turn * k / n
+            out.append(center + radius * (math.cos(phi) * e1 + math.sin(phi) * u_in))
+            radii.append(radius)
+            if k == n // 2:
+                wp_index.append(len(out) - 1)
+    if len(pts) > 1:
+        out.append(pts[-1])
+        radii.append(math.inf)
+        wp_index.append(len(out) - 1)
+    points = np.array(out, float)
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    s_m = np.concatenate([[0.0], np.cumsum(steps)])
+    seg = np.full(len(steps), float(cruise_mps))
+    for j, (step, radius) in enumerate(zip(steps, radii, strict=True)):
+        if math.isfinite(radius):
+            seg[j] = min(seg[j], math.sqrt(lateral_accel_mps2 * radius))
+        climb = abs(points[j + 1, 2] - points[j, 2])
+        if step > 1e-12 and climb > 1e-9:
+            seg[j] = min(seg[j], vertical_mps * step / climb)
+    speed = np.empty(len(points))
+    speed[0] = seg[0] if len(seg) else 0.0
+    speed[1:-1] = np.minimum(seg[:-1], seg[1:])
+    speed[-1] = 0.0
+    for j in range(len(points) - 2, -1, -1):
+        speed[j] = min(speed[j], math.sqrt(speed[j + 1] ** 2 + 2.0 * accel_mps2 * steps[j]))
+    return SmoothPath(points, s_m, seg, speed, s_m[wp_index], float(accel_mps2))
+
+
+def path_length_m(points: np.ndarray) -> float:
+    """3D length of a polyline given as rows whose first three columns are north, east, altitude (m)."""
+    if len(points) < 2:
+        return 0.0
+    return float(np.linalg.norm(np.diff(np.asarray(points, float)[:, :3], axis=0), axis=1).sum())

@@ -18,6 +18,12 @@ def test_every_top_level_module_is_listed_in_pyproject():
     assert listed == present
 
 
+def test_every_package_is_listed_in_pyproject():
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    present = {p.parent.name for p in ROOT.glob("*/__init__.py")} - {"tests"}
+    assert set(config["tool"]["setuptools"]["packages"]) == present
+
+
 def test_console_scripts_point_at_existing_functions():
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())
     for target in config["project"]["scripts"].values():

@@ -1,4 +1,4 @@
-"""vehicle.py: pure MAVLink -> SI translation, and the link/command logic against a tiny fake autopilot.
+"""The vehicle package: pure MAVLink -> SI translation, and the link/command logic against a tiny fake autopilot.
 
 Messages are encoded to real MAVLink 2 bytes with ``mavlink.MAVLink(io.BytesIO())`` and decoded again, so the
 translation functions see exactly what the wire delivers. Expected values are worked out from the MAVLink spec

@@ -1,23 +1,10 @@
-"""The MAVLink link to the autopilot: the only module that imports pymavlink.
+"""The MAVLink link: :class:`MavlinkVehicle`, its typed errors and the autopilots' mode numbers.
 
-:class:`MavlinkVehicle` connects with any pymavlink connection string, waits for the autopilot's heartbeat,
-requests telemetry, and runs two threads: a reader that translates every message into the SI :class:`Telemetry`
-dataclass, and a sender that sends our HEARTBEAT at 1 Hz and, while we control the vehicle, re-sends the current
-position setpoint at ``setpoint_rate_hz`` (PX4 leaves OFFBOARD after 0.5 s without one).
-
-MAVLink is translated at one boundary: one pure ``telemetry_from_*`` function per message family, each
-``(telemetry, msg, now_s) -> Telemetry``, dispatched by :func:`update_telemetry`.
-
-Frames: ``LOCAL_POSITION_NED`` is relative to wherever the autopilot's EKF started, which need not be the map
-origin. :func:`map_offset` computes ``map_ned - autopilot_local_ned`` from one GLOBAL_POSITION_INT sample and
-the LOCAL_POSITION_NED sample extrapolated to the same instant; map altitude 0 is the home altitude, so the map
-``down`` of the vehicle is ``-relative_alt_m``.
+Part of the ``vehicle`` package, the only code that imports pymavlink.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import enum
 import logging
 import math
 import os
@@ -25,16 +12,25 @@ import struct
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from frames import Geodetic, LocalNED, geodetic_to_ned
+from frames import Geodetic, LocalNED
+
+from .telemetry import (
+    Autopilot,
+    StatusText,
+    Telemetry,
+    is_autopilot_heartbeat,
+    map_offset,
+    update_telemetry,
+)
 
 log = logging.getLogger(__name__)
+_NAN = math.nan
 
-STATUSTEXT_KEEP = 32
 #: position + yaw only: ignore velocity, acceleration and yaw rate.
 TYPE_MASK_POSITION_YAW = (
     mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE
@@ -53,15 +49,6 @@ TYPE_MASK_POSITION_VELOCITY_YAW = (
     | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
     | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
     | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
-)
-_NOT_AUTOPILOT_TYPES = frozenset(
-    {
-        mavlink.MAV_TYPE_GCS,
-        mavlink.MAV_TYPE_GIMBAL,
-        mavlink.MAV_TYPE_ADSB,
-        mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
-        mavlink.MAV_TYPE_CAMERA,
-    }
 )
 
 
@@ -133,259 +120,6 @@ def result_name(result: int) -> str:
     """``MAV_RESULT_...`` name of a result number (or the number)."""
     entry = mavlink.enums["MAV_RESULT"].get(result)
     return entry.name if entry else f"result {result}"
-
-
-# ------------------------------------------------------------------------------------------------ telemetry
-class Autopilot(enum.Enum):
-    """Which mode conventions the autopilot follows, from ``HEARTBEAT.autopilot``."""
-
-    PX4 = "px4"
-    ARDUPILOT = "ardupilot"
-    GENERIC = "generic"  # flown with PX4's conventions
-
-
-class LandedState(enum.IntEnum):
-    """``MAV_LANDED_STATE`` from EXTENDED_SYS_STATE."""
-
-    UNDEFINED = mavlink.MAV_LANDED_STATE_UNDEFINED
-    ON_GROUND = mavlink.MAV_LANDED_STATE_ON_GROUND
-    IN_AIR = mavlink.MAV_LANDED_STATE_IN_AIR
-    TAKEOFF = mavlink.MAV_LANDED_STATE_TAKEOFF
-    LANDING = mavlink.MAV_LANDED_STATE_LANDING
-
-
-@dataclass(frozen=True)
-class StatusText:
-    """One STATUSTEXT: MAV_SEVERITY (0 emergency .. 7 debug), text, our monotonic receive time in s."""
-
-    severity: int
-    text: str
-    time_s: float
-
-
-_NAN = math.nan
-
-
-@dataclass(frozen=True)
-class Telemetry:
-    """Everything we know about the vehicle, in SI units. NaN / None until the message first arrives.
-
-    Global: ``lat_deg``, ``lon_deg``, ``alt_amsl_m``, ``relative_alt_m`` (above home), NED ground velocity
-    ``v*_mps``. Local (autopilot's EKF frame, NED): ``north_m``, ``east_m``, ``down_m``, ``local_v*_mps``.
-    ``*_time_s`` are the autopilot's time since boot of that sample. ``heading_rad`` is yaw from north, clockwise.
-    """
-
-    autopilot: Autopilot = Autopilot.GENERIC
-    armed: bool = False
-    mode: str = ""
-    system_status: int = 0
-    last_heartbeat_s: float = _NAN
-    lat_deg: float = _NAN
-    lon_deg: float = _NAN
-    alt_amsl_m: float = _NAN
-    relative_alt_m: float = _NAN
-    v_north_mps: float = _NAN
-    v_east_mps: float = _NAN
-    v_down_mps: float = _NAN
-    global_time_s: float = _NAN
-    north_m: float = _NAN
-    east_m: float = _NAN
-    down_m: float = _NAN
-    local_v_north_mps: float = _NAN
-    local_v_east_mps: float = _NAN
-    local_v_down_mps: float = _NAN
-    local_time_s: float = _NAN
-    roll_rad: float = _NAN
-    pitch_rad: float = _NAN
-    heading_rad: float = _NAN
-    landed_state: LandedState = LandedState.UNDEFINED
-    battery_voltage_v: float = _NAN
-    battery_remaining_pct: float = _NAN
-    prearm_ok: bool | None = None
-    home: Geodetic | None = None
-    statustexts: tuple[StatusText, ...] = field(default_factory=tuple)
-
-    @property
-    def has_global(self) -> bool:
-        return not math.isnan(self.lat_deg)
-
-    @property
-    def has_local(self) -> bool:
-        return not math.isnan(self.north_m)
-
-    @property
-    def local(self) -> LocalNED:
-        """Position in the autopilot's local NED frame."""
-        return LocalNED(self.north_m, self.east_m, self.down_m)
-
-    @property
-    def on_ground(self) -> bool:
-        """Landed: EXTENDED_SYS_STATE says ON_GROUND (or, without it, near home altitude), and not moving vertically.
-
-        The vertical-speed check guards against a landed state that is a moment old: just after takeoff the
-        last EXTENDED_SYS_STATE may still say ON_GROUND while the vehicle climbs.
-        """
-        still = not abs(self.v_down_mps) >= 0.2  # an unknown (NaN) speed does not veto the landed state
-        if self.landed_state is not LandedState.UNDEFINED:
-            return self.landed_state is LandedState.ON_GROUND and still
-        return self.relative_alt_m < 0.3 and still
-
-    @property
-    def ground_speed_mps(self) -> float:
-        return math.hypot(self.local_v_north_mps, self.local_v_east_mps)
-
-
-def autopilot_from_heartbeat(msg) -> Autopilot:
-    """PX4, ArduPilot or generic from ``HEARTBEAT.autopilot``."""
-    if msg.autopilot == mavlink.MAV_AUTOPILOT_PX4:
-        return Autopilot.PX4
-    if msg.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
-        return Autopilot.ARDUPILOT
-    return Autopilot.GENERIC
-
-
-def is_autopilot_heartbeat(msg) -> bool:
-    """True for a flight controller's heartbeat; False for ground stations, gimbals, cameras, companions."""
-    return msg.type not in _NOT_AUTOPILOT_TYPES and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID
-
-
-def telemetry_from_heartbeat(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Armed flag, mode name (pymavlink's tables; PX4's for generic autopilots), autopilot kind, receive time."""
-    autopilot = autopilot_from_heartbeat(msg)
-    if autopilot is Autopilot.GENERIC and msg.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-        mode = mavutil.interpret_px4_mode(msg.base_mode, msg.custom_mode)  # flown with PX4 conventions
-    else:
-        mode = mavutil.mode_string_v10(msg)
-    return dataclasses.replace(
-        t,
-        autopilot=autopilot,
-        armed=bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED),
-        mode=mode,
-        system_status=msg.system_status,
-        last_heartbeat_s=now_s,
-    )
-
-
-def telemetry_from_global_position_int(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """degE7 -> deg, mm -> m, cm/s -> m/s, cdeg heading -> rad (only when ATTITUDE has not given one)."""
-    heading = t.heading_rad
-    if math.isnan(heading) and msg.hdg != 65535:
-        heading = math.radians(msg.hdg / 100.0)
-    return dataclasses.replace(
-        t,
-        lat_deg=msg.lat * 1e-7,
-        lon_deg=msg.lon * 1e-7,
-        alt_amsl_m=msg.alt * 1e-3,
-        relative_alt_m=msg.relative_alt * 1e-3,
-        v_north_mps=msg.vx * 1e-2,
-        v_east_mps=msg.vy * 1e-2,
-        v_down_mps=msg.vz * 1e-2,
-        global_time_s=msg.time_boot_ms * 1e-3,
-        heading_rad=heading,
-    )
-
-
-def telemetry_from_local_position_ned(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Autopilot-local NED position (m) and velocity (m/s)."""
-    return dataclasses.replace(
-        t,
-        north_m=float(msg.x),
-        east_m=float(msg.y),
-        down_m=float(msg.z),
-        local_v_north_mps=float(msg.vx),
-        local_v_east_mps=float(msg.vy),
-        local_v_down_mps=float(msg.vz),
-        local_time_s=msg.time_boot_ms * 1e-3,
-    )
-
-
-def telemetry_from_attitude(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Roll, pitch, and yaw as ``heading_rad`` in [0, 2 pi)."""
-    return dataclasses.replace(
-        t, roll_rad=float(msg.roll), pitch_rad=float(msg.pitch), heading_rad=float(msg.yaw) % (2 * math.pi)
-    )
-
-
-def telemetry_from_extended_sys_state(t: Telemetry, msg, now_s: float) -> Telemetry:
-    try:
-        landed = LandedState(msg.landed_state)
-    except ValueError:
-        landed = LandedState.UNDEFINED
-    return dataclasses.replace(t, landed_state=landed)
-
-
-def telemetry_from_sys_status(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Battery (mV -> V, -1 unknown -> NaN) and the pre-arm check bit when the autopilot reports it."""
-    prearm = mavlink.MAV_SYS_STATUS_PREARM_CHECK
-    return dataclasses.replace(
-        t,
-        battery_voltage_v=msg.voltage_battery * 1e-3 if msg.voltage_battery != 65535 else _NAN,
-        battery_remaining_pct=float(msg.battery_remaining) if msg.battery_remaining >= 0 else _NAN,
-        prearm_ok=bool(msg.onboard_control_sensors_health & prearm)
-        if msg.onboard_control_sensors_present & prearm
-        else None,
-    )
-
-
-def telemetry_from_home_position(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Home as a :class:`Geodetic` (degE7 -> deg, mm AMSL -> m)."""
-    return dataclasses.replace(t, home=Geodetic(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3))
-
-
-def telemetry_from_statustext(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Append the text (keeping the last :data:`STATUSTEXT_KEEP`)."""
-    text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
-    entry = StatusText(int(msg.severity), text.rstrip("\x00"), now_s)
-    return dataclasses.replace(t, statustexts=(*t.statustexts, entry)[-STATUSTEXT_KEEP:])
-
-
-TRANSLATORS: dict[str, Callable[[Telemetry, object, float], Telemetry]] = {
-    "HEARTBEAT": telemetry_from_heartbeat,
-    "GLOBAL_POSITION_INT": telemetry_from_global_position_int,
-    "LOCAL_POSITION_NED": telemetry_from_local_position_ned,
-    "ATTITUDE": telemetry_from_attitude,
-    "EXTENDED_SYS_STATE": telemetry_from_extended_sys_state,
-    "SYS_STATUS": telemetry_from_sys_status,
-    "HOME_POSITION": telemetry_from_home_position,
-    "STATUSTEXT": telemetry_from_statustext,
-}
-
-
-def update_telemetry(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Apply one decoded message; messages we do not translate leave ``t`` unchanged."""
-    translate = TRANSLATORS.get(msg.get_type())
-    return translate(t, msg, now_s) if translate else t
-
-
-def map_offset(t: Telemetry, map_origin: Geodetic) -> LocalNED:
-    """Offset from the autopilot's local frame to the map frame: ``map_ned = local_ned + offset``.
-
-    The map frame is NED at ``map_origin`` (lat0, lon0) with altitude 0 = home altitude. The local sample is
-    extrapolated with its velocity to the global sample's time, so the two describe the same instant.
-
-    >>> t = Telemetry(lat_deg=37.79248, lon_deg=-122.39745, relative_alt_m=5.0, global_time_s=10.0,
-    ...               north_m=1.0, east_m=2.0, down_m=-4.0, local_v_north_mps=2.0, local_v_east_mps=0.0,
-    ...               local_v_down_mps=0.0, local_time_s=9.5)
-    >>> [round(v, 3) for v in map_offset(t, Geodetic(37.79248, -122.39745))]
-    [-2.0, -2.0, -1.0]
-    """
-    if not (t.has_global and t.has_local):
-        raise ValueError("map_offset needs both GLOBAL_POSITION_INT and LOCAL_POSITION_NED")
-    dt = t.global_time_s - t.local_time_s
-    if not math.isfinite(dt) or abs(dt) > 1.0:
-        dt = 0.0
-    local = LocalNED(
-        t.north_m + t.local_v_north_mps * dt, t.east_m + t.local_v_east_mps * dt, t.down_m + t.local_v_down_mps * dt
-    )
-    horizontal = geodetic_to_ned(Geodetic(t.lat_deg, t.lon_deg, map_origin.alt_m), map_origin)
-    return LocalNED(horizontal.north_m - local.north_m, horizontal.east_m - local.east_m,
-                    -t.relative_alt_m - local.down_m)
-
-
-def map_position(t: Telemetry, map_origin: Geodetic) -> LocalNED:
-    """The vehicle's map-frame position from its global position alone (down = ``-relative_alt_m``)."""
-    horizontal = geodetic_to_ned(Geodetic(t.lat_deg, t.lon_deg, map_origin.alt_m), map_origin)
-    return LocalNED(horizontal.north_m, horizontal.east_m, -t.relative_alt_m)
 
 
 def mode_numbers(autopilot: Autopilot, mode: str, mav_type: int = mavlink.MAV_TYPE_QUADROTOR) -> tuple[int, int]:

@@ -45,7 +45,14 @@ from planning_utils import (
 
 log = logging.getLogger("motion_planning")
 
-DEFAULT_MAP = Path(__file__).resolve().with_name("colliders.csv")
+def default_map_path() -> Path:
+    """The project's ``colliders.csv`` beside this file (a checkout), else ``colliders.csv`` in the working
+    directory (an installed console script has no map beside it)."""
+    beside = Path(__file__).resolve().with_name("colliders.csv")
+    return beside if beside.exists() else Path("colliders.csv")
+
+
+DEFAULT_MAP = default_map_path()
 PLANNERS = ("grid", "medial-axis", "voronoi", "prm", "grid3d", "any-angle")
 PLANNERS_3D = ("prm", "grid3d")  # the planners that can end at another altitude (--goal_alt)
 
@@ -122,7 +129,8 @@ def load_setting(map_path: str | Path, altitude_m: float, safety_m: float) -> Se
     except MapFormatError as exc:
         raise UserError(f"bad map file {exc}") from None
     except OSError as exc:
-        raise UserError(f"cannot read map file {map_path}: {exc.strerror or exc}") from None
+        hint = " (pass --map FILE)" if isinstance(exc, FileNotFoundError) else ""
+        raise UserError(f"cannot read map file {map_path}: {exc.strerror or exc}{hint}") from None
     home = Geodetic(city.lat0_deg, city.lon0_deg, 0.0)
     return Setting(city, home, GridMap.build(city.obstacles, altitude_m, safety_m), altitude_m, safety_m)
 

@@ -207,3 +207,12 @@ def test_plot_into_a_missing_directory_is_refused_before_planning(walled_map, tm
     assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--plot", str(target)]) == 2
     captured = capsys.readouterr()
     assert "is not a directory" in captured.err and captured.out == ""
+
+
+def test_an_installed_script_without_a_map_beside_it_uses_the_working_directory(tmp_path, monkeypatch):
+    import motion_planning
+
+    monkeypatch.setattr(motion_planning, "__file__", str(tmp_path / "site-packages" / "motion_planning.py"))
+    assert motion_planning.default_map_path() == Path("colliders.csv")
+    monkeypatch.setattr(motion_planning, "__file__", str(ROOT / "motion_planning.py"))
+    assert motion_planning.default_map_path() == ROOT / "colliders.csv"

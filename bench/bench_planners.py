@@ -1,10 +1,10 @@
-"""Benchmark every planner of ``graph_planning`` on the same queries of one map, in one run.
+"""Benchmark every planner of ``skyroute.planning.graphs`` on the same queries of one map, in one run.
 
     python bench/bench_planners.py [--map PATH] [--altitude 5] [--safety 5] [--repeat 5] [--skip-reference]
 
 For each planner and query: build time of the per-map structure (median of ``--builds`` fresh builds, after a
 warm-up that compiles the numba kernels), query time (median of ``--repeat`` calls on the cached structure,
-wall time of ``graph_planning.plan``), flown path length (3D for the 3D planners), its ratio to the yardstick,
+wall time of ``graphs.plan``), flown path length (3D for the 3D planners), its ratio to the yardstick,
 the waypoint count, and the minimum clearance: the 3D distance from the flown legs (sampled every 0.25 m) to the
 nearest obstacle box without margin.
 
@@ -30,10 +30,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-import graph_planning as gp  # noqa: E402
-import grid3d_planning as g3  # noqa: E402
 import planning_utils as pu  # noqa: E402
-import sampling_planning as sp  # noqa: E402
+from skyroute.planning import graphs as gp  # noqa: E402
+from skyroute.planning import grid3d as g3  # noqa: E402
+from skyroute.planning import sampling as sp  # noqa: E402
 
 SHARED_MAP = REPO.parent / "shared" / "maps" / "udacity_sf_colliders.csv"
 # Queries as fractions of the grid shape (as in bench_grid.py); each end snaps to the nearest free cell.

@@ -50,8 +50,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     sys.path.insert(0, str(REPO))  # a checkout works without installing; an installed project wins anyway
-    import citygen
     import planning_utils as pu
+    from skyroute import citygen
 
     rss0 = peak_rss_mb()
     t0 = time.perf_counter()

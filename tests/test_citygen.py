@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-import citygen
+from skyroute import citygen
 
 REPO = Path(__file__).resolve().parent.parent
 SHIPPED = REPO / "colliders.csv"

@@ -356,7 +356,7 @@ def test_link_lost_in_flight_gives_up_after_link_timeout(start_sim, tmp_path, ca
 
 
 def test_ctrl_c_in_flight_lands_then_exits_130(start_sim, tmp_path, capsys, block_map, monkeypatch):
-    import vehicle
+    from skyroute import vehicle
 
     real_goto = vehicle.MavlinkVehicle.goto_local
     calls = []
@@ -408,7 +408,7 @@ def child_pids() -> set[int]:
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="child processes are found through /proc")
 def test_sim_option_flies_the_bundled_sim_and_stops_it(tmp_path, capsys, monkeypatch, watchdog):
-    import vehicle
+    from skyroute import vehicle
 
     watchdog(45.0)
     before = child_pids()

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from frames import Geodetic, LocalNED, ned_to_geodetic
 from motion_planning import DEFAULT_MAP, EXIT_BAD_INPUT, EXIT_NO_PATH, main
 from planning_utils import create_grid, line_of_sight, read_colliders
+from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
 
 ROOT = Path(__file__).resolve().parents[1]
 HOME = Geodetic(37.792480, -122.397450, 0.0)
@@ -210,9 +210,9 @@ def test_plot_into_a_missing_directory_is_refused_before_planning(walled_map, tm
 
 
 def test_an_installed_script_without_a_map_beside_it_uses_the_working_directory(tmp_path, monkeypatch):
-    import motion_planning
+    from skyroute.cli import main as cli
 
-    monkeypatch.setattr(motion_planning, "__file__", str(tmp_path / "site-packages" / "motion_planning.py"))
-    assert motion_planning.default_map_path() == Path("colliders.csv")
-    monkeypatch.setattr(motion_planning, "__file__", str(ROOT / "motion_planning.py"))
-    assert motion_planning.default_map_path() == ROOT / "colliders.csv"
+    monkeypatch.setattr(cli, "__file__", str(tmp_path / "site-packages" / "skyroute" / "cli" / "main.py"))
+    assert cli.default_map_path() == Path("colliders.csv")
+    monkeypatch.setattr(cli, "__file__", str(ROOT / "skyroute" / "cli" / "main.py"))
+    assert cli.default_map_path() == ROOT / "colliders.csv"

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from frames import Geodetic, LocalNED, geodetic_to_ned, global_to_local, local_to_global, ned_to_geodetic
+from skyroute.frames import Geodetic, LocalNED, geodetic_to_ned, global_to_local, local_to_global, ned_to_geodetic
 
 HOME = Geodetic(37.792480, -122.397450, 0.0)
 # WGS84 meridian radius of curvature at 37.79 deg N, so one degree of latitude is about 111,000 m.

@@ -14,11 +14,11 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-import any_angle
-import graph_planning as gp
-import grid3d_planning
 import planning_utils as pu
-import sampling_planning
+from skyroute.planning import any_angle
+from skyroute.planning import graphs as gp
+from skyroute.planning import grid3d as grid3d_planning
+from skyroute.planning import sampling as sampling_planning
 
 POSTS_40 = [[0.25, 0.25, 0.1, 0.25, 0.25, 0.1], [39.75, 39.75, 0.1, 0.25, 0.25, 0.1]]  # grid 40 x 40, low
 PLANNERS_2D = [name for name in gp.PLANNERS if name not in gp.PLANNERS_3D]

@@ -13,10 +13,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import graph_planning as gp
-import grid3d_planning as g3
 import planning_utils as pu
-import sampling_planning as sp
+from skyroute.planning import graphs as gp
+from skyroute.planning import grid3d as g3
+from skyroute.planning import sampling as sp
 
 POSTS_40 = [[0.25, 0.25, 0.1, 0.25, 0.25, 0.1], [39.75, 39.75, 0.1, 0.25, 0.25, 0.1]]
 

@@ -14,11 +14,11 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-import flight_path as fp
-import mission as m
-from frames import Geodetic, LocalNED
-from mission import MissionEvent as E
-from mission import MissionState as S
+from skyroute.flight import mission as m
+from skyroute.flight import path as fp
+from skyroute.flight.mission import MissionEvent as E
+from skyroute.flight.mission import MissionState as S
+from skyroute.frames import Geodetic, LocalNED
 
 ORIGIN = Geodetic(37.79248, -122.39745, 0.0)
 OFFSET = LocalNED(100.0, -50.0, 0.0)  # the autopilot's local origin is 100 m S, 50 m E of the map origin
@@ -776,7 +776,7 @@ def around_the_building(start_north_m, start_east_m):
 
 
 def fly(sim, plan_fn=around_the_building, **kwargs):
-    import vehicle as vh  # pymavlink only in the flight tests
+    from skyroute import vehicle as vh  # pymavlink only in the flight tests
 
     with vh.MavlinkVehicle(f"tcp:127.0.0.1:{sim.port}", heartbeat_timeout_s=5.0,
                            link_timeout_s=kwargs.pop("link_timeout_s", 3.0)) as v:

@@ -1,32 +1,66 @@
-"""The installed package must contain every module the checkout has, or `pip install .` ships a broken client."""
+"""What `pip install .` ships: a wheel built from this checkout, its top level, its modules and console scripts."""
 
 from __future__ import annotations
 
+import configparser
+import shutil
+import subprocess
+import sys
+import zipfile
 from pathlib import Path
 
 import pytest
 
-tomllib = pytest.importorskip("tomllib")  # Python 3.11+
-
 ROOT = Path(__file__).resolve().parents[1]
+#: The wheel's top level, as the user asked: the classic entry points, the simulator and one project package.
+TOP_LEVEL = {"motion_planning.py", "planning_utils.py", "sim", "skyroute"}
 
 
-def test_every_top_level_module_is_listed_in_pyproject():
-    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    listed = set(config["tool"]["setuptools"]["py-modules"])
-    present = {p.stem for p in ROOT.glob("*.py")}
-    assert listed == present
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> zipfile.ZipFile:
+    """A wheel built by pip from a copy of the files a source distribution holds (the checkout stays clean)."""
+    src = tmp_path_factory.mktemp("src")
+    for name in ("pyproject.toml", "README.md", "motion_planning.py", "planning_utils.py"):
+        shutil.copy(ROOT / name, src / name)
+    for package in ("skyroute", "sim"):
+        shutil.copytree(ROOT / package, src / package, ignore=shutil.ignore_patterns("__pycache__"))
+    out = tmp_path_factory.mktemp("wheel")
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--wheel-dir", str(out), str(src)],
+                   check=True, capture_output=True, text=True, timeout=300)
+    (path,) = out.glob("*.whl")
+    with zipfile.ZipFile(path) as z:
+        yield z
 
 
-def test_every_package_is_listed_in_pyproject():
-    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    present = {p.parent.name for p in ROOT.glob("*/__init__.py")} - {"tests"}
-    assert set(config["tool"]["setuptools"]["packages"]) == present
+def _top_level(wheel: zipfile.ZipFile) -> set[str]:
+    return {name.split("/")[0] for name in wheel.namelist() if ".dist-info/" not in name}
 
 
-def test_console_scripts_point_at_existing_functions():
-    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    for target in config["project"]["scripts"].values():
+def test_the_wheel_has_only_the_classic_modules_the_sim_and_one_package_at_its_top_level(wheel):
+    assert _top_level(wheel) == TOP_LEVEL
+
+
+def test_the_wheel_ships_every_module_of_the_checkout(wheel):
+    shipped = set(wheel.namelist())
+    for package in ("skyroute", "sim"):
+        for path in (ROOT / package).rglob("*.py"):
+            assert path.relative_to(ROOT).as_posix() in shipped
+
+
+def test_the_checkout_has_no_other_top_level_python_modules():
+    # A new top-level module would be left out of the wheel (or would be a generic name in site-packages).
+    modules = {p.name for p in ROOT.glob("*.py")}
+    packages = {p.parent.name for p in ROOT.glob("*/__init__.py")} - {"tests"}
+    assert modules | packages == TOP_LEVEL
+
+
+def test_console_scripts_point_at_existing_functions(wheel):
+    (entry_points,) = [n for n in wheel.namelist() if n.endswith(".dist-info/entry_points.txt")]
+    config = configparser.ConfigParser()
+    config.read_string(wheel.read(entry_points).decode())
+    scripts = dict(config["console_scripts"])
+    assert set(scripts) == {"motion-planning", "mock-autopilot"}
+    for target in scripts.values():
         module, function = target.split(":")
-        source = (ROOT / (module.replace(".", "/") + ".py")).read_text()
+        source = wheel.read(module.replace(".", "/") + ".py").decode()
         assert f"def {function}(" in source

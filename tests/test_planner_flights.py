@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from frames import Geodetic, LocalNED, ned_to_geodetic
 from motion_planning import PLANNERS, main
 from sim import SimConfig, Simulator
+from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
 
 ROOT = Path(__file__).resolve().parents[1]
 HOME = Geodetic(37.792480, -122.397450, 0.0)
@@ -69,7 +69,7 @@ def test_a_slow_planner_does_not_stall_the_link(tmp_path, capsys, monkeypatch):
 
     from pymavlink import mavutil
 
-    import motion_planning
+    from skyroute.cli import flying as motion_planning
 
     real_make_plan = motion_planning.make_plan
 

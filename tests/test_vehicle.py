@@ -18,8 +18,8 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-import vehicle as vh
-from frames import Geodetic, LocalNED, ned_to_geodetic
+from skyroute import vehicle as vh
+from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
 
 MAP_ORIGIN = Geodetic(37.792480, -122.397450, 0.0)
 

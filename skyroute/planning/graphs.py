@@ -3,16 +3,16 @@
 =============  ==============================================================================  =================
 name           what it searches                                                                module
 =============  ==============================================================================  =================
-grid           8-connected cells, optimal (JPS), line-of-sight pruned                          planning_utils
+grid           8-connected cells, optimal (JPS), line-of-sight pruned                          grid
 medial-axis    skeleton of the free cells (scikit-image ``medial_axis``), 8-connected pixels    here
 voronoi        Voronoi ridges of the C-space obstacle boundary (scipy.spatial), kept if free    here
 any-angle      Lazy Theta* on the grid: any cell the path can see may be its parent             any_angle
-grid3d         (north, east, altitude level) cells with climb/descent cost, rooftop goals      grid3d_planning
-prm            probabilistic roadmap sampled in (north, east, altitude), k-nearest edges        sampling_planning
+grid3d         (north, east, altitude level) cells with climb/descent cost, rooftop goals      grid3d
+prm            probabilistic roadmap sampled in (north, east, altitude), k-nearest edges        sampling
 =============  ==============================================================================  =================
 
-Every planner returns a ``planning_utils.Plan`` with ``[north_m, east_m, altitude_m, heading_rad]`` waypoints and
-raises the ``planning_utils`` errors (``OutsideGridError``, ``BlockedCellError``, ``NoPathError``) for a bad start,
+Every planner returns a ``plan.Plan`` with ``[north_m, east_m, altitude_m, heading_rad]`` waypoints and
+raises the ``errors`` module's errors (``OutsideGridError``, ``BlockedCellError``, ``NoPathError``) for a bad start,
 a bad goal or no path. The 2D planners fly at one altitude and put waypoints on cell centres of
 ``create_grid(obstacles, altitude_m, safety_m)``; every leg's supercover is free on that grid. The 3D planners
 keep every leg clear of every obstacle box grown by ``safety_m``. :func:`colliding_legs` checks both.
@@ -34,13 +34,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import any_angle
-import grid3d_planning
-import planning_utils as pu
-import sampling_planning
+from skyroute.planning import PLANNERS, PLANNERS_3D, any_angle, grid3d, sampling
+from skyroute.planning.cspace import cell_to_map, create_grid, map_to_cell
+from skyroute.planning.errors import NoPathError
+from skyroute.planning.grid import GridMap
+from skyroute.planning.plan import Plan
+from skyroute.planning.pruning import (
+    headings_along,
+    line_of_sight,
+    path_length,
+    prune_line_of_sight,
+    waypoints_from_cells,
+)
 
-PLANNERS = ("grid", "medial-axis", "voronoi", "prm", "grid3d", "any-angle")
-PLANNERS_3D = ("prm", "grid3d")
 _CACHE_SIZE = 8
 _LINK_CANDIDATES = (16, 64, 256)  # nearest roadmap nodes tried, in rounds, when linking a start or goal
 
@@ -60,7 +66,7 @@ def plan(
     goal_alt_m: float | None = None,
     seed: int = 0,
     snap_start: bool = False,
-) -> pu.Plan:
+) -> Plan:
     """Plan with planner ``name`` from ``start_ne`` to ``goal_ne`` (map-frame ``(north_m, east_m)``).
 
     Parameters
@@ -84,13 +90,13 @@ def plan(
 
     Returns
     -------
-    planning_utils.Plan
+    skyroute.planning.plan.Plan
 
     Raises
     ------
     ValueError
         For an unknown planner or a goal altitude a 2D planner cannot fly.
-    planning_utils.OutsideGridError, planning_utils.BlockedCellError, planning_utils.NoPathError
+    skyroute.planning.errors.OutsideGridError, BlockedCellError, NoPathError
         For a start or goal off the map or blocked, or no path.
 
     Examples
@@ -121,7 +127,7 @@ def plan(
     return _with_extra(result, {"build_ms": round(build_ms, 3)})
 
 
-def _with_extra(result: pu.Plan, extra: dict) -> pu.Plan:
+def _with_extra(result: Plan, extra: dict) -> Plan:
     return dataclasses.replace(result, extra={**result.extra, **extra})
 
 
@@ -131,12 +137,12 @@ def _with_extra(result: pu.Plan, extra: dict) -> pu.Plan:
 
 def _builder(name: str) -> Callable:
     return {
-        "grid": pu.GridMap.build,
+        "grid": GridMap.build,
         "medial-axis": MedialAxisRoadmap.build,
         "voronoi": VoronoiRoadmap.build,
         "any-angle": AnyAnglePlanner.build,
-        "grid3d": grid3d_planning.Grid3DPlanner.build,
-        "prm": sampling_planning.ProbabilisticRoadmap.build,
+        "grid3d": grid3d.Grid3DPlanner.build,
+        "prm": sampling.ProbabilisticRoadmap.build,
     }[name]
 
 
@@ -179,7 +185,7 @@ def clear_cache() -> None:
 
 
 def colliding_legs(
-    plan_: pu.Plan, obstacles: np.ndarray, safety_m: float, *, skip_lead_in: bool = False
+    plan_: Plan, obstacles: np.ndarray, safety_m: float, *, skip_lead_in: bool = False
 ) -> list[int]:
     """Indices of the legs of ``plan_`` that break its planner's collision rule (empty = collision-free).
 
@@ -193,29 +199,29 @@ def colliding_legs(
     if len(waypoints) < 2:
         return []
     if plan_.planner in PLANNERS_3D:
-        clear = grid3d_planning.legs_clear_of_boxes(waypoints[:, :3], obstacles, safety_m)
+        clear = grid3d.legs_clear_of_boxes(waypoints[:, :3], obstacles, safety_m)
         return [k for k in range(first, len(clear)) if not clear[k]]
     altitude = waypoints[0, 2]
     if not np.all(waypoints[:, 2] == altitude):
         return list(range(first, len(waypoints) - 1))
-    grid, north_offset, east_offset = pu.create_grid(obstacles, altitude, safety_m)
+    grid, north_offset, east_offset = create_grid(obstacles, altitude, safety_m)
     bad = []
     for k in range(first, len(waypoints) - 1):
         cells = []
         for point in waypoints[k : k + 2, :2]:
-            cell = pu.map_to_cell(point[0], point[1], north_offset, east_offset)
-            on_centre = np.allclose(pu.cell_to_map(cell, north_offset, east_offset), point, atol=1e-9)
+            cell = map_to_cell(point[0], point[1], north_offset, east_offset)
+            on_centre = np.allclose(cell_to_map(cell, north_offset, east_offset), point, atol=1e-9)
             cells.append(cell if on_centre else None)
         lead_in_start = k == 0 and skip_lead_in
         if cells[1] is None or (cells[0] is None and not lead_in_start):
             bad.append(k)
-        elif not pu.line_of_sight(grid, cells[0], cells[1]):
+        elif not line_of_sight(grid, cells[0], cells[1]):
             bad.append(k)
     return bad
 
 
 def legs_collision_free(
-    plan_: pu.Plan, obstacles: np.ndarray, safety_m: float, *, skip_lead_in: bool = False
+    plan_: Plan, obstacles: np.ndarray, safety_m: float, *, skip_lead_in: bool = False
 ) -> bool:
     """True if :func:`colliding_legs` finds no leg in collision."""
     return not colliding_legs(plan_, obstacles, safety_m, skip_lead_in=skip_lead_in)
@@ -231,7 +237,7 @@ def free_mask(grid: np.ndarray) -> np.ndarray:
 
 
 def resolve_endpoints(
-    gmap: pu.GridMap, start_ne: Sequence[float], goal_ne: Sequence[float], snap_start: bool
+    gmap: GridMap, start_ne: Sequence[float], goal_ne: Sequence[float], snap_start: bool
 ) -> tuple[tuple[int, int], tuple[int, int], np.ndarray | None]:
     """Start and goal cells on ``gmap``'s grid, checked, and the lead-in point of a snapped start (or None).
 
@@ -245,7 +251,7 @@ def resolve_endpoints(
 
 def plan_from_cells(
     name: str,
-    gmap: pu.GridMap,
+    gmap: GridMap,
     cells: np.ndarray,
     cost_cells: float,
     search_ms: float,
@@ -253,22 +259,22 @@ def plan_from_cells(
     lead_in: np.ndarray | None,
     extra: dict,
     structure: dict,
-) -> pu.Plan:
+) -> Plan:
     """A 2D ``Plan`` from a route of cells whose consecutive pairs are mutually visible: prune, waypoints."""
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
     cells = cells[np.concatenate(([True], (np.diff(cells, axis=0) != 0).any(axis=1)))]  # a node on the start
-    pruned = pu.prune_line_of_sight(gmap.grid, cells)
-    waypoints = pu.waypoints_from_cells(pruned, gmap.north_offset, gmap.east_offset, gmap.altitude_m)
+    pruned = prune_line_of_sight(gmap.grid, cells)
+    waypoints = waypoints_from_cells(pruned, gmap.north_offset, gmap.east_offset, gmap.altitude_m)
     raw = cells + (gmap.north_offset + 0.5, gmap.east_offset + 0.5)
     if lead_in is not None:
         points = np.vstack([lead_in, waypoints[:, :2]])
-        waypoints = np.column_stack([points, np.full(len(points), gmap.altitude_m), pu.headings_along(points)])
+        waypoints = np.column_stack([points, np.full(len(points), gmap.altitude_m), headings_along(points)])
         raw = np.vstack([lead_in, raw])
-    return pu.Plan(
+    return Plan(
         planner=name,
         waypoints=waypoints,
         raw_path_ne=raw,
-        length_m=pu.path_length(waypoints[:, :2]),
+        length_m=path_length(waypoints[:, :2]),
         cost_m=float(cost_cells),
         search_ms=search_ms,
         expanded=int(expanded),
@@ -285,19 +291,19 @@ def plan_from_cells(
 class AnyAnglePlanner:
     """Lazy Theta* on the grid (see ``any_angle.lazy_theta_star``); legs are supercover-free by construction."""
 
-    gmap: pu.GridMap
+    gmap: GridMap
 
     @classmethod
     def build(cls, obstacles: np.ndarray, altitude_m: float, safety_m: float) -> AnyAnglePlanner:
-        return cls(pu.GridMap.build(obstacles, altitude_m, safety_m))
+        return cls(GridMap.build(obstacles, altitude_m, safety_m))
 
-    def plan(self, start_ne: Sequence[float], goal_ne: Sequence[float], *, snap_start: bool = False) -> pu.Plan:
+    def plan(self, start_ne: Sequence[float], goal_ne: Sequence[float], *, snap_start: bool = False) -> Plan:
         start, goal, lead_in = resolve_endpoints(self.gmap, start_ne, goal_ne, snap_start)
         t0 = time.perf_counter()
         cells, cost, expanded = any_angle.lazy_theta_star(self.gmap.grid, start[0], start[1], goal[0], goal[1])
         search_ms = (time.perf_counter() - t0) * 1e3
         if cost < 0:
-            raise pu.NoPathError(start, goal, int(expanded))
+            raise NoPathError(start, goal, int(expanded))
         extra = {"start_cell": list(start), "goal_cell": list(goal)}
         return plan_from_cells("any-angle", self.gmap, cells, cost, search_ms, expanded, lead_in, extra, {})
 
@@ -316,7 +322,7 @@ class Roadmap2D:
     """
 
     name: str
-    gmap: pu.GridMap
+    gmap: GridMap
     node_cells: np.ndarray
     indptr: np.ndarray
     indices: np.ndarray
@@ -326,7 +332,7 @@ class Roadmap2D:
     edges_ne: np.ndarray  # (E, 2, 2) edge segments in map metres, for plots
 
     @classmethod
-    def from_edges(cls, name: str, gmap: pu.GridMap, node_cells: np.ndarray, edges: np.ndarray, extra: dict):
+    def from_edges(cls, name: str, gmap: GridMap, node_cells: np.ndarray, edges: np.ndarray, extra: dict):
         """Build from ``(E, 2)`` node index pairs (each undirected edge once, visible, no self-loops)."""
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
@@ -364,11 +370,11 @@ class Roadmap2D:
                 return idx[ok].astype(np.int64), dist[ok]
         return np.empty(0, np.int64), np.empty(0)
 
-    def plan(self, start_ne: Sequence[float], goal_ne: Sequence[float], *, snap_start: bool = False) -> pu.Plan:
+    def plan(self, start_ne: Sequence[float], goal_ne: Sequence[float], *, snap_start: bool = False) -> Plan:
         start, goal, lead_in = resolve_endpoints(self.gmap, start_ne, goal_ne, snap_start)
         t0 = time.perf_counter()
         direct = math.hypot(goal[0] - start[0], goal[1] - start[1])
-        if not pu.line_of_sight(self.gmap.grid, start, goal):
+        if not line_of_sight(self.gmap.grid, start, goal):
             direct = math.inf
         start_nodes, start_costs = self._links(start)
         goal_nodes, goal_dist = self._links(goal)
@@ -381,7 +387,7 @@ class Roadmap2D:
         )
         search_ms = (time.perf_counter() - t0) * 1e3
         if cost < 0:
-            raise pu.NoPathError(start, goal, int(expanded))
+            raise NoPathError(start, goal, int(expanded))
         cells = np.vstack([np.asarray([start]), self.node_cells[nodes], np.asarray([goal])])
         extra = {**self.extra, "start_links": len(start_nodes), "goal_links": len(goal_nodes)}
         return plan_from_cells(self.name, self.gmap, cells, cost, search_ms, expanded, lead_in, extra,
@@ -402,12 +408,12 @@ class MedialAxisRoadmap(Roadmap2D):
     def build(cls, obstacles: np.ndarray, altitude_m: float, safety_m: float) -> MedialAxisRoadmap:
         from skimage.morphology import medial_axis
 
-        gmap = pu.GridMap.build(obstacles, altitude_m, safety_m)
+        gmap = GridMap.build(obstacles, altitude_m, safety_m)
         skeleton = medial_axis(free_mask(gmap.grid))
         return cls.from_skeleton(gmap, skeleton)
 
     @classmethod
-    def from_skeleton(cls, gmap: pu.GridMap, skeleton: np.ndarray) -> MedialAxisRoadmap:
+    def from_skeleton(cls, gmap: GridMap, skeleton: np.ndarray) -> MedialAxisRoadmap:
         """Nodes are skeleton pixels; edges join 8-neighbours, a diagonal only where both side cells are free."""
         n, m = skeleton.shape
         index = np.full((n + 2, m + 2), -1, np.int64)
@@ -436,11 +442,11 @@ class VoronoiRoadmap(Roadmap2D):
 
     @classmethod
     def build(cls, obstacles: np.ndarray, altitude_m: float, safety_m: float) -> VoronoiRoadmap:
-        gmap = pu.GridMap.build(obstacles, altitude_m, safety_m)
+        gmap = GridMap.build(obstacles, altitude_m, safety_m)
         return cls.from_grid(gmap)
 
     @classmethod
-    def from_grid(cls, gmap: pu.GridMap) -> VoronoiRoadmap:
+    def from_grid(cls, gmap: GridMap) -> VoronoiRoadmap:
         from scipy import ndimage
         from scipy.spatial import QhullError, Voronoi
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from frames import Geodetic, LocalNED, geodetic_to_ned
+from skyroute.frames import Geodetic, LocalNED, geodetic_to_ned
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 
 Everything here works on a *padded, flattened* grid: the occupancy grid gets a one-cell blocked border and is
 raveled, so a cell is one integer ``v = (i + 1) * width + (j + 1)`` and its neighbours are ``v +/- 1`` (east/west)
-and ``v +/- width`` (north/south). The border means no bounds checks in the loops. ``planning_utils.GridPlanner``
+and ``v +/- width`` (north/south). The border means no bounds checks in the loops. ``search.GridPlanner``
 owns the padding and the workspace; this module holds only the loops, compiled by numba (``cache=True``: the
 machine code is stored on disk, so only the very first run pays the compile time).
 
@@ -39,7 +39,7 @@ def _octile(i, j, gi, gj):
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Binary min-heap of (f, g, node) in three parallel arrays (shared with any_angle and grid3d_planning),
+# Binary min-heap of (f, g, node) in three parallel arrays (shared with any_angle and grid3d),
 # ordered by f then by larger g: among equal f the deeper node goes first,
 # which finishes straight runs instead of fanning out. Stale entries are skipped on pop.
 

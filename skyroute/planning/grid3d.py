@@ -1,7 +1,7 @@
 """Altitude-aware planning on a 2.5D height map: the ``grid3d`` planner and the 3D collision checks.
 
 The map becomes one float array ``floor_m[north_idx, east_idx]`` (same cells and offsets as
-``planning_utils.create_grid``): the lowest altitude at which the cell is free, i.e. the highest
+``cspace.create_grid``): the lowest altitude at which the cell is free, i.e. the highest
 ``top + safety_m`` of the obstacles whose grown footprint touches the cell (``-inf`` where none does). So
 ``floor_m > z`` is exactly ``create_grid(obstacles, z, safety_m)[0]`` for every altitude ``z``, and one array
 serves every altitude.
@@ -29,8 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-import grid_search
-import planning_utils as pu
+from skyroute.planning import kernels
+from skyroute.planning.cspace import cell_to_map, create_grid, map_to_cell, nearest_free_cell, snap_start_cell
+from skyroute.planning.errors import BlockedCellError, NoPathError, OutsideGridError
+from skyroute.planning.plan import Plan
+from skyroute.planning.pruning import headings_along, path_length
 
 SQRT2 = math.sqrt(2.0)
 MAX_LEVEL_STEP_M = 5.0
@@ -62,7 +65,7 @@ def floor_map(obstacles: np.ndarray, safety_m: float) -> tuple[np.ndarray, int, 
     [[2.0, -inf, -inf], [-inf, 10.0, 10.0], [-inf, 10.0, 10.0]]
     """
     obstacles = np.asarray(obstacles, dtype=np.float64)
-    _, north_offset, east_offset = pu.create_grid(obstacles, -math.inf, safety_m)  # shape and offsets only
+    _, north_offset, east_offset = create_grid(obstacles, -math.inf, safety_m)  # shape and offsets only
     north, east, alt, d_north, d_east, d_alt = obstacles.T
     north_size = int(np.ceil(np.max(north + d_north))) - north_offset
     east_size = int(np.ceil(np.max(east + d_east))) - east_offset
@@ -127,7 +130,7 @@ def leg_free(floor, i0, j0, z0, i1, j1, z1):
         return False
     ni, nj = abs(i1 - i0), abs(j1 - j0)
     cells = np.empty((ni + nj + 1 + 2 * min(ni, nj), 2), np.int64)
-    count = grid_search.walk_supercover(np.zeros((1, 1), np.bool_), i0, j0, i1, j1, cells)
+    count = kernels.walk_supercover(np.zeros((1, 1), np.bool_), i0, j0, i1, j1, cells)
     low, high = min(z0, z1), max(z0, z1)
     di, dj, dz = float(i1 - i0), float(j1 - j0), z1 - z0
     for k in range(count):
@@ -204,15 +207,15 @@ def astar3d(floor, levels, start, goal, climb_weight, descent_weight, state, g_c
     gi, gj, gk = goal[0], goal[1], goal[2]
     s = sk * plane + si * m + sj
     t = gk * plane + gi * m + gj
-    hf, hg, hv = grid_search.new_heap()
+    hf, hg, hv = kernels.new_heap()
     state[s], g_cost[s], move[s] = 1, 0.0, -1
-    hf, hg, hv, size = grid_search.heap_push(
+    hf, hg, hv, size = kernels.heap_push(
         hf, hg, hv, 0, _h(si, sj, sk, gi, gj, gk, levels, climb_weight, descent_weight), 0.0, s
     )
     expanded = 0
     found = False
     while size > 0:
-        v, fv, gv, size = grid_search.heap_pop(hf, hg, hv, size)
+        v, fv, gv, size = kernels.heap_pop(hf, hg, hv, size)
         if state[v] == 2 or gv > g_cost[v]:
             continue
         state[v] = 2
@@ -248,7 +251,7 @@ def astar3d(floor, levels, start, goal, climb_weight, descent_weight, state, g_c
                 continue
             state[w], g_cost[w], move[w] = 1, gw, d
             f = gw + _h(wi, wj, wk, gi, gj, gk, levels, climb_weight, descent_weight)
-            hf, hg, hv, size = grid_search.heap_push(hf, hg, hv, size, f, gw, w)
+            hf, hg, hv, size = kernels.heap_push(hf, hg, hv, size, f, gw, w)
     if not found:
         return np.empty((0, 3), np.int64), -1.0, expanded
     count = 1
@@ -271,9 +274,9 @@ def astar3d(floor, levels, start, goal, climb_weight, descent_weight, state, g_c
 def _check_cell(floor: np.ndarray, which: str, cell: tuple[int, int], altitude_m: float) -> tuple[int, int]:
     n, m = floor.shape
     if not (0 <= cell[0] < n and 0 <= cell[1] < m):
-        raise pu.OutsideGridError(which, cell, (n, m))
+        raise OutsideGridError(which, cell, (n, m))
     if floor[cell] > altitude_m:
-        raise pu.BlockedCellError(which, cell, pu.nearest_free_cell(floor > altitude_m, cell))
+        raise BlockedCellError(which, cell, nearest_free_cell(floor > altitude_m, cell))
     return cell
 
 
@@ -292,15 +295,15 @@ def resolve_endpoints_3d(
 
     Raises ``OutsideGridError`` or ``BlockedCellError`` like ``GridMap.plan``.
     """
-    start_cell = pu.map_to_cell(start_ne[0], start_ne[1], north_offset, east_offset)
-    goal_cell = pu.map_to_cell(goal_ne[0], goal_ne[1], north_offset, east_offset)
+    start_cell = map_to_cell(start_ne[0], start_ne[1], north_offset, east_offset)
+    goal_cell = map_to_cell(goal_ne[0], goal_ne[1], north_offset, east_offset)
     lead_in = None
     n, m = floor.shape
     if snap_start and 0 <= start_cell[0] < n and 0 <= start_cell[1] < m and floor[start_cell] > altitude_m:
-        footprint = pu.create_grid(obstacles, altitude_m, 0.0)[0]  # same extent and offsets as ``floor``
-        snapped = pu.snap_start_cell(floor > altitude_m, footprint, start_cell)
+        footprint = create_grid(obstacles, altitude_m, 0.0)[0]  # same extent and offsets as ``floor``
+        snapped = snap_start_cell(floor > altitude_m, footprint, start_cell)
         if snapped is not None:
-            lead_in = np.array(pu.cell_to_map(start_cell, north_offset, east_offset))
+            lead_in = np.array(cell_to_map(start_cell, north_offset, east_offset))
             start_cell = snapped
     start_cell = _check_cell(floor, "start", start_cell, altitude_m)
     return start_cell, _check_cell(floor, "goal", goal_cell, goal_alt_m), lead_in
@@ -309,7 +312,7 @@ def resolve_endpoints_3d(
 def headings_3d(points: np.ndarray) -> np.ndarray:
     """Headings along ``(K, >=2)`` points (north, east first); a vertical leg keeps the previous heading."""
     points = np.asarray(points, dtype=np.float64)
-    headings = pu.headings_along(points[:, :2])
+    headings = headings_along(points[:, :2])
     if len(points) < 2:
         return headings
     horizontal = np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1) > 0
@@ -363,7 +366,7 @@ class Grid3DPlanner:
         *,
         goal_alt_m: float | None = None,
         snap_start: bool = False,
-    ) -> pu.Plan:
+    ) -> Plan:
         """Cheapest route from ``start_ne`` at ``altitude_m`` to ``goal_ne`` at ``goal_alt_m`` (default the same).
 
         Raises ``OutsideGridError``, ``BlockedCellError`` (start or goal cell not free at its altitude) or
@@ -388,7 +391,7 @@ class Grid3DPlanner:
         )
         search_ms = (time.perf_counter() - t0) * 1e3
         if cost < 0:
-            raise pu.NoPathError(start_cell, goal_cell, int(expanded))
+            raise NoPathError(start_cell, goal_cell, int(expanded))
         path = np.column_stack([cells[:, :2].astype(np.float64), levels[cells[:, 2]]])
         pruned = path[prune_mask_3d(self.floor, path)]
         points = np.column_stack([pruned[:, 0] + self.north_offset + 0.5, pruned[:, 1] + self.east_offset + 0.5,
@@ -398,11 +401,11 @@ class Grid3DPlanner:
             points = np.vstack([[lead_in[0], lead_in[1], self.altitude_m], points])
             raw = np.vstack([lead_in, raw])
         waypoints = np.column_stack([points, headings_3d(points)])
-        return pu.Plan(
+        return Plan(
             planner="grid3d",
             waypoints=waypoints,
             raw_path_ne=raw,
-            length_m=pu.path_length(points),
+            length_m=path_length(points),
             cost_m=float(cost),
             search_ms=search_ms,
             expanded=int(expanded),

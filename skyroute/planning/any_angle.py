@@ -2,16 +2,16 @@
 
 * :func:`lazy_theta_star` is any-angle search on the occupancy grid (Nash, Koenig & Tovey 2010): A* over the
   8-connected cells where a node's parent may be any cell it can see, so paths are not restricted to 45-degree
-  steps. "Line of sight" is the supercover walk of ``grid_search.walk_supercover`` (every cell the segment between
+  steps. "Line of sight" is the supercover walk of ``kernels.walk_supercover`` (every cell the segment between
   two cell centres touches is free), the same test that checks every planner's legs, so each returned leg is
   collision-free by construction. Lazy: line of sight is checked once per expansion, not once per neighbour.
 * :func:`roadmap_astar` is A* over a graph in CSR form (``indptr``, ``indices``, ``weights``) with per-query
   virtual start and goal nodes, so the medial-axis and Voronoi roadmaps are built once and queried without
   copying them.
-* Both use the heap of ``grid_search`` (``heap_push`` / ``heap_pop`` on three parallel arrays ``f, g, node``);
+* Both use the heap of ``kernels`` (``heap_push`` / ``heap_pop`` on three parallel arrays ``f, g, node``);
   among equal ``f`` the larger ``g`` pops first.
 
-Grid convention as in ``planning_utils``: ``bool`` grid, True = blocked, indexed ``grid[north_idx, east_idx]``.
+Grid convention as in ``cspace``: ``bool`` grid, True = blocked, indexed ``grid[north_idx, east_idx]``.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-import grid_search
+from skyroute.planning import kernels
 
 SQRT2 = math.sqrt(2.0)
 
@@ -34,7 +34,7 @@ SQRT2 = math.sqrt(2.0)
 def visible(grid, i0, j0, i1, j1):
     """True if the segment between the centres of cells ``(i0, j0)`` and ``(i1, j1)`` touches only free cells."""
     no_output = np.empty((0, 2), np.int64)
-    return grid_search.walk_supercover(grid, i0, j0, i1, j1, no_output) == 0
+    return kernels.walk_supercover(grid, i0, j0, i1, j1, no_output) == 0
 
 
 @njit(cache=True)
@@ -82,13 +82,13 @@ def lazy_theta_star(grid, si, sj, gi, gj):
     start, goal = si * m + sj, gi * m + gj
     di = np.array([1, -1, 0, 0, 1, 1, -1, -1])
     dj = np.array([0, 0, 1, -1, 1, -1, 1, -1])
-    hf, hg, hv = grid_search.new_heap()
+    hf, hg, hv = kernels.new_heap()
     g_cost[start] = 0.0
     parent[start] = start
-    hf, hg, hv, hsize = grid_search.heap_push(hf, hg, hv, 0, math.hypot(si - gi, sj - gj), 0.0, start)
+    hf, hg, hv, hsize = kernels.heap_push(hf, hg, hv, 0, math.hypot(si - gi, sj - gj), 0.0, start)
     expanded = 0
     while hsize > 0:
-        v, fv, gv, hsize = grid_search.heap_pop(hf, hg, hv, hsize)
+        v, fv, gv, hsize = kernels.heap_pop(hf, hg, hv, hsize)
         if closed[v] or gv > g_cost[v]:
             continue
         vi, vj = v // m, v % m
@@ -126,7 +126,7 @@ def lazy_theta_star(grid, si, sj, gi, gj):
             gw = g_cost[p] + math.hypot(wi - pi, wj - pj)
             if gw < g_cost[w]:
                 g_cost[w], parent[w] = gw, p
-                hf, hg, hv, hsize = grid_search.heap_push(hf, hg, hv, hsize, gw + math.hypot(wi - gi, wj - gj), gw, w)
+                hf, hg, hv, hsize = kernels.heap_push(hf, hg, hv, hsize, gw + math.hypot(wi - gi, wj - gj), gw, w)
     if not closed[goal]:
         return np.empty((0, 2), np.int64), -1.0, expanded
     count = 1
@@ -162,7 +162,7 @@ def roadmap_astar(indptr, indices, weights, coords, start_nodes, start_costs, go
     g_cost = np.full(size, np.inf)
     parent = np.full(size, -1, np.int64)
     closed = np.zeros(size, np.bool_)
-    hf, hg, hv = grid_search.new_heap()
+    hf, hg, hv = kernels.new_heap()
     hsize = 0
     gx, gy = goal_xy[0], goal_xy[1]
     for k in range(start_nodes.shape[0]):
@@ -170,11 +170,11 @@ def roadmap_astar(indptr, indices, weights, coords, start_nodes, start_costs, go
         if start_costs[k] < g_cost[v]:
             g_cost[v], parent[v] = start_costs[k], -1
             h = math.hypot(coords[v, 0] - gx, coords[v, 1] - gy)
-            hf, hg, hv, hsize = grid_search.heap_push(hf, hg, hv, hsize, start_costs[k] + h, start_costs[k], v)
+            hf, hg, hv, hsize = kernels.heap_push(hf, hg, hv, hsize, start_costs[k] + h, start_costs[k], v)
     best, best_last = direct_cost, -1
     expanded = 0
     while hsize > 0:
-        v, fv, gv, hsize = grid_search.heap_pop(hf, hg, hv, hsize)
+        v, fv, gv, hsize = kernels.heap_pop(hf, hg, hv, hsize)
         if fv >= best:
             break
         if closed[v] or gv > g_cost[v]:
@@ -190,7 +190,7 @@ def roadmap_astar(indptr, indices, weights, coords, start_nodes, start_costs, go
                 continue
             g_cost[w], parent[w] = gw, v
             h = math.hypot(coords[w, 0] - gx, coords[w, 1] - gy)
-            hf, hg, hv, hsize = grid_search.heap_push(hf, hg, hv, hsize, gw + h, gw, w)
+            hf, hg, hv, hsize = kernels.heap_push(hf, hg, hv, hsize, gw + h, gw, w)
     if best == np.inf:
         return np.empty(0, np.int64), -1.0, expanded
     count = 0

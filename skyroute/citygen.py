@@ -1,7 +1,8 @@
 """A small deterministic city generator that writes maps in the classic ``colliders.csv`` format.
 
 The project's own map (``colliders.csv`` at the repository root) is produced by this module; run
-``python citygen.py`` to regenerate it byte for byte, or ``python citygen.py --size-m 5000 -o city5k.csv`` for a
+``python -m skyroute.citygen`` to regenerate it byte for byte, or
+``python -m skyroute.citygen --size-m 5000 -o city5k.csv`` for a
 larger city to benchmark with.
 
 Frame and units: every box is ``north_m, east_m, centre_alt_m, half_north_m, half_east_m, half_alt_m`` in the
@@ -285,7 +286,7 @@ def write_colliders(
 def main(argv: list[str] | None = None) -> int:
     """Command line: generate a city and write it as a colliders file. Returns the exit code."""
     parser = argparse.ArgumentParser(
-        prog="citygen.py",
+        prog="python -m skyroute.citygen",
         description="Generate a deterministic city map in the colliders.csv format. "
         "With no arguments it regenerates the project's colliders.csv.",
     )
@@ -304,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         city = generate_city(size_m=args.size_m, seed=args.seed, lat0_deg=args.lat0, lon0_deg=args.lon0)
     except ValueError as err:
-        print(f"citygen.py: error: {err}", file=sys.stderr)
+        print(f"citygen: error: {err}", file=sys.stderr)
         return 2
     write_colliders(args.output, city, args.lat0, args.lon0)
     print(f"wrote {city.shape[0]} boxes ({args.size_m:g} m square, seed {args.seed}) to {args.output}")

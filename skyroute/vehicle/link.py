@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from frames import Geodetic, LocalNED
+from skyroute.frames import Geodetic, LocalNED
 
 from .telemetry import (
     Autopilot,

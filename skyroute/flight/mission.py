@@ -28,8 +28,8 @@ from typing import Protocol
 
 import numpy as np
 
-from flight_path import SmoothPath, leg_headings, path_length_m, smooth_path
-from frames import Geodetic, LocalNED
+from skyroute.flight.path import SmoothPath, leg_headings, path_length_m, smooth_path
+from skyroute.frames import Geodetic, LocalNED
 
 log = logging.getLogger(__name__)
 
@@ -262,7 +262,7 @@ class Mission:
     map_origin : Geodetic
         The map's lat0/lon0 (alt 0).
     no_path_errors : tuple of exception types
-        What ``plan_fn`` raises when there is no path (e.g. ``planning_utils.NoPathError``).
+        What ``plan_fn`` raises when there is no path (e.g. ``skyroute.planning.errors.NoPathError``).
     vehicle_errors : tuple of exception types
         What vehicle calls raise on refusal/timeout (e.g. ``vehicle.VehicleError``): arming is retried on these
         and a flight that raises them lands. Required: anything else (a bug) propagates as itself.

@@ -2,8 +2,8 @@
 
 Build: draw uniform samples over the map's cells (at cell centres) and altitudes
 ``[altitude_m, altitude_m + altitude_span_m]``, keep those whose cell is free at their altitude (one vectorised
-lookup in ``grid3d_planning.floor_map``, no loop over obstacles) until ``n_samples`` nodes are kept, link each node
-to its ``k`` nearest with scipy's ``cKDTree``, and keep the links that pass ``grid3d_planning.leg_free`` (over
+lookup in ``grid3d.floor_map``, no loop over obstacles) until ``n_samples`` nodes are kept, link each node
+to its ``k`` nearest with scipy's ``cKDTree``, and keep the links that pass ``grid3d.leg_free`` (over
 every cell of its 2D supercover the leg is at or above the cell's floor). The roadmap is a networkx graph
 weighted by 3D length.
 
@@ -21,8 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import grid3d_planning as g3
-import planning_utils as pu
+from skyroute.planning import grid3d as g3
+from skyroute.planning.errors import NoPathError
+from skyroute.planning.plan import Plan
+from skyroute.planning.pruning import path_length
 
 _LINK_CANDIDATES = (16, 64)
 
@@ -151,7 +153,7 @@ class ProbabilisticRoadmap:
         *,
         goal_alt_m: float | None = None,
         snap_start: bool = False,
-    ) -> pu.Plan:
+    ) -> Plan:
         """Route from ``start_ne`` at ``altitude_m`` to ``goal_ne`` at ``goal_alt_m`` (default: the same).
 
         Raises ``OutsideGridError``, ``BlockedCellError`` or ``NoPathError`` (also when the roadmap does not
@@ -195,24 +197,24 @@ class ProbabilisticRoadmap:
                 weight="weight",
             )
         except (nx.NetworkXNoPath, nx.NodeNotFound):
-            raise pu.NoPathError(start_cell, goal_cell, 0) from None
+            raise NoPathError(start_cell, goal_cell, 0) from None
         finally:
             graph.remove_nodes_from(added)
         search_ms = (time.perf_counter() - t0) * 1e3
         path = np.array([position(v) for v in route])
         path = path[np.concatenate(([True], (np.diff(path, axis=0) != 0).any(axis=1)))]  # a node on the start
-        cost = pu.path_length(path)
+        cost = path_length(path)
         pruned = path[g3.prune_mask_3d(self.floor, path)]
         points = pruned + (self.north_offset + 0.5, self.east_offset + 0.5, 0.0)
         raw = path[:, :2] + (self.north_offset + 0.5, self.east_offset + 0.5)
         if lead_in is not None:
             points = np.vstack([[lead_in[0], lead_in[1], self.altitude_m], points])
             raw = np.vstack([lead_in, raw])
-        return pu.Plan(
+        return Plan(
             planner="prm",
             waypoints=np.column_stack([points, g3.headings_3d(points)]),
             raw_path_ne=raw,
-            length_m=pu.path_length(points),
+            length_m=path_length(points),
             cost_m=float(cost),
             search_ms=search_ms,
             expanded=len(route),
@@ -229,7 +231,7 @@ def connection_rate(
     for start_ne, goal_ne in queries:
         try:
             roadmap.plan(start_ne, goal_ne)
-        except pu.NoPathError:
+        except NoPathError:
             continue
         connected += 1
     return connected / max(len(queries), 1)

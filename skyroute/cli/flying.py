@@ -1,0 +1,157 @@
+"""The flying half of the command line: logs, connect, run the mission, turn its outcome into an exit code."""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from skyroute.cli.exits import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NO_PATH, EXIT_OK, UserError
+from skyroute.cli.setting import Setting, make_plan, plan_summary, save_plot
+from skyroute.planning.plan import Plan
+
+log = logging.getLogger("motion_planning")
+
+# ---------------------------------------------------------------------------------------------------------------
+# Flying
+
+
+class PlanRefused(Exception):
+    """Raised inside the mission's planning step; carries the :class:`UserError` for the CLI."""
+
+    def __init__(self, error: UserError):
+        super().__init__(str(error))
+        self.error = error
+
+
+def make_log_dir(log_dir: str | Path) -> Path:
+    """Create the log directory, or raise :class:`UserError` saying why not."""
+    try:
+        Path(log_dir).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot use {log_dir} as the log directory: {exc.strerror or exc}") from None
+    return Path(log_dir)
+
+
+def open_logs(log_dir: str | Path) -> tuple[Path, Path, logging.Handler]:
+    """Create ``log_dir`` and a navigation log handler (flushed after every record) plus a tlog path."""
+    import time
+
+    log_dir = make_log_dir(log_dir)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    nav_path, tlog_path = log_dir / f"navlog-{stamp}.txt", log_dir / f"flight-{stamp}.tlog"
+    handler = logging.FileHandler(nav_path, encoding="utf-8")  # StreamHandler flushes after each record
+    handler.setLevel(logging.INFO)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    return nav_path, tlog_path, handler
+
+
+def fly(
+    setting: Setting,
+    goal_ne: Sequence[float],
+    *,
+    connection: str,
+    planner: str,
+    goal_alt_m: float | None,
+    seed: int,
+    heartbeat_timeout_s: float,
+    arm_timeout_s: float,
+    link_lost_timeout_s: float = 30.0,
+    log_dir: str | Path,
+    plot: str | None,
+    out,
+) -> int:
+    """Connect, arm, plan from where the vehicle is, take off, fly, land at the goal, disarm.
+
+    Returns the exit code; problems before takeoff raise :class:`UserError`. Whatever happens after takeoff,
+    the mission lands (or holds) before this returns, and says so.
+    """
+    from skyroute import vehicle as vehicle_mod
+    from skyroute.flight import mission as mission_mod
+
+    nav_path, tlog_path, handler = open_logs(log_dir)
+    root = logging.getLogger()
+    saved_levels = [(root, root.level)] + [(h, h.level) for h in root.handlers]  # restored on the way out
+    root.addHandler(handler)
+    if root.level > logging.INFO or root.level == logging.NOTSET:
+        root.setLevel(logging.INFO)
+        for other in root.handlers:  # keep the console as quiet as the user asked
+            if other is not handler and other.level == logging.NOTSET:
+                other.setLevel(logging.WARNING)
+    plans: list[Plan] = []
+
+    def plan_from(start_north_m: float, start_east_m: float) -> np.ndarray:
+        try:
+            plan = make_plan(
+                setting, (start_north_m, start_east_m), goal_ne, planner,
+                goal_alt_m=goal_alt_m, seed=seed, snap_start=True,
+            )
+        except UserError as exc:
+            raise PlanRefused(exc) from None
+        log.info(plan_summary(plan))
+        plans.append(plan)
+        return plan.waypoints
+
+    try:
+        print(f"connecting to {connection} ...", file=out, flush=True)
+        try:
+            drone = vehicle_mod.MavlinkVehicle(
+                connection, heartbeat_timeout_s=heartbeat_timeout_s, tlog_path=tlog_path
+            )
+        except vehicle_mod.VehicleError as exc:
+            raise UserError(f"no autopilot answered on {connection}: {exc}") from None
+        try:
+            print(f"connected to a {drone.autopilot.name} autopilot; logs in {nav_path} and {tlog_path}",
+                  file=out, flush=True)
+            mission = mission_mod.Mission(
+                drone, plan_from, altitude_m=setting.altitude_m, map_origin=setting.home,
+                no_path_errors=(PlanRefused,), vehicle_errors=(vehicle_mod.VehicleError,),
+                arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s,
+            )
+            try:
+                result = mission.run()
+            except vehicle_mod.VehicleError as exc:  # before arming: e.g. no position to plan from
+                raise UserError(f"the vehicle did not get ready: {exc}") from None
+            except mission_mod.ArmingFailed as exc:
+                raise UserError(str(exc)) from None
+            except mission_mod.NoPathFound as exc:
+                cause = exc.__cause__
+                if isinstance(cause, PlanRefused):
+                    raise UserError(f"{cause.error} (disarmed, never took off)", cause.error.exit_code) from None
+                raise UserError(str(exc), EXIT_NO_PATH) from None
+            except mission_mod.MissionError as exc:
+                print(f"error: mission failed: {exc}", file=sys.stderr)
+                if exc.result is not None and plans and plot:
+                    save_plot(plot, setting, plans[-1], exc.result.track[:, 1:3])
+                return EXIT_FAILED
+            except KeyboardInterrupt:
+                print(f"interrupted: {interrupted_outcome(mission)}", file=sys.stderr)
+                return EXIT_INTERRUPTED
+        finally:
+            drone.close()
+        print(f"mission complete: {result.summary()}", file=out)
+        if plot and plans:
+            save_plot(plot, setting, plans[-1], result.track[:, 1:3])
+            print(f"plot written to {plot}", file=out)
+        return EXIT_OK
+    finally:
+        root.removeHandler(handler)
+        handler.close()
+        for logger_or_handler, level in saved_levels:
+            logger_or_handler.setLevel(level)
+
+
+def interrupted_outcome(mission) -> str:
+    """What the mission did with the vehicle after Ctrl-C, from its state and history (not assumed)."""
+    from skyroute.flight import mission as mission_mod
+
+    state, history = mission.state, mission.result.history
+    if state is mission_mod.MissionState.MANUAL:
+        if any(new is mission_mod.MissionState.TAKEOFF for _, _, new in history):
+            return "the vehicle was landed and disarmed first"
+        return "the vehicle is disarmed on the ground; it never took off" if history else "the vehicle was never armed"
+    return (f"the mission stopped in state {state.name}: the vehicle may not be on the ground and disarmed; "
+            "the autopilot's failsafe owns it")

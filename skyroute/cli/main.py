@@ -1,0 +1,245 @@
+"""Plan a collision-free route through the city and fly it over MAVLink.
+
+Usage (see README.md)::
+
+    python motion_planning.py --plan-only --goal_lat 37.7955 --goal_lon -122.3937 --alt 5 --safety 5
+    python motion_planning.py --sim --goal_lat 37.7955 --goal_lon -122.3937 --alt 5
+    python motion_planning.py --connection tcp:127.0.0.1:5760 --goal_lat .. --goal_lon ..
+
+``main(argv) -> int`` parses the command line and calls :func:`run` with the same names; the process exit code
+is its result. Heavy modules (matplotlib, pymavlink, the graph planners) are imported only when used, so a plan
+alone starts fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import os
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+
+from skyroute.cli.bundled_sim import BundledSim, sim_report_summary
+from skyroute.cli.exits import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, UserError
+from skyroute.cli.flying import fly, make_log_dir
+from skyroute.cli.setting import check_endpoint, load_setting, make_plan, plan_document, print_plan, save_plot
+from skyroute.frames import Geodetic, geodetic_to_ned
+from skyroute.planning import PLANNERS, PLANNERS_3D
+
+log = logging.getLogger("motion_planning")
+
+
+def default_map_path() -> Path:
+    """The project's ``colliders.csv`` at the root of a checkout (beside the ``skyroute`` package), else
+    ``colliders.csv`` in the working directory (an installed console script has no map beside it)."""
+    beside = Path(__file__).resolve().parents[2] / "colliders.csv"
+    return beside if beside.exists() else Path("colliders.csv")
+
+
+DEFAULT_MAP = default_map_path()
+
+
+def check_numbers(**options) -> None:
+    """Refuse NaN, infinite and out-of-range numbers before they reach a planner or a vehicle.
+
+    (NaN compares False with everything, so without this ``--safety nan`` would silently plan through buildings.)
+    """
+    ranges = {  # option: (lowest, highest, lowest allowed itself)
+        "goal_lat": (-90.0, 90.0, True), "start_lat": (-90.0, 90.0, True),
+        "goal_lon": (-180.0, 180.0, True), "start_lon": (-180.0, 180.0, True),
+        "alt": (0.0, 10_000.0, False), "safety": (0.0, 1_000.0, True), "goal_alt": (0.0, 10_000.0, True),
+        "speedup": (0.0, 1_000.0, False), "timeout": (0.0, 86_400.0, False),
+        "arm_timeout": (0.0, 86_400.0, False), "link_timeout": (0.0, 86_400.0, False),
+        "port": (1, 65_535, True), "seed": (0, 2**32 - 1, True),
+    }
+    for name, value in options.items():
+        if value is None or name not in ranges:
+            continue
+        low, high, low_ok = ranges[name]
+        if not (math.isfinite(value) and (low <= value if low_ok else low < value) and value <= high):
+            bound = f"{'>=' if low_ok else '>'} {low:g} and <= {high:g}"
+            raise UserError(f"--{name.replace('_', '-') if name.endswith('timeout') else name} must be {bound}, "
+                            f"got {value}")
+
+
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The command line
+
+
+def run(
+    *,
+    goal_lat: float | None = None,
+    goal_lon: float | None = None,
+    alt: float = 5.0,
+    safety: float = 5.0,
+    start_lat: float | None = None,
+    start_lon: float | None = None,
+    goal_alt: float | None = None,
+    map_path: str | Path = DEFAULT_MAP,
+    planner: str = "grid",
+    seed: int = 0,
+    plot: str | None = None,
+    json_output: bool = False,
+    plan_only: bool = False,
+    connection: str | None = None,
+    host: str = "127.0.0.1",
+    port: int = 5760,
+    sim: bool = False,
+    speedup: float = 5.0,
+    timeout: float = 15.0,
+    arm_timeout: float = 60.0,
+    link_timeout: float = 30.0,
+    log_dir: str | Path = "logs",
+    out=None,
+) -> int:
+    """Plan (and, unless ``plan_only``, fly) one mission; returns the process exit code.
+
+    Raises :class:`UserError` for problems the user can fix; :func:`main` prints those.
+    """
+    out = out or sys.stdout
+    if goal_lat is None or goal_lon is None:
+        raise UserError("give the goal as --goal_lat DEG --goal_lon DEG")
+    if (start_lat is None) != (start_lon is None):
+        raise UserError("give both --start_lat and --start_lon, or neither (start at the map's home)")
+    check_numbers(goal_lat=goal_lat, goal_lon=goal_lon, start_lat=start_lat, start_lon=start_lon, alt=alt,
+                  safety=safety, goal_alt=goal_alt, seed=seed, port=port, speedup=speedup, timeout=timeout,
+                  arm_timeout=arm_timeout, link_timeout=link_timeout)
+    if goal_alt is not None and planner not in PLANNERS_3D:
+        raise UserError(f"--goal_alt needs a 3D planner ({' or '.join(PLANNERS_3D)}), not {planner}")
+    if plot and not Path(plot).resolve().parent.is_dir():
+        raise UserError(f"cannot write the plot {plot}: {Path(plot).resolve().parent} is not a directory")
+    setting = load_setting(map_path, alt, safety)
+    goal_ne = geodetic_to_ned(Geodetic(goal_lat, goal_lon, 0.0), setting.home)[:2]
+    if not plan_only:
+        if start_lat is not None and not sim:
+            raise UserError("--start_lat/--start_lon need --plan-only or --sim: a real vehicle starts where it is")
+        # Refuse a bad goal before connecting, let alone arming.
+        check_endpoint(setting, "goal", *goal_ne, on_map_only=goal_alt is not None)
+        make_log_dir(log_dir)
+        options = dict(planner=planner, goal_alt_m=goal_alt, seed=seed, heartbeat_timeout_s=timeout,
+                       arm_timeout_s=arm_timeout, link_lost_timeout_s=link_timeout, log_dir=log_dir, plot=plot,
+                       out=out)
+        if not sim:
+            return fly(setting, goal_ne, connection=connection or f"tcp:{host}:{port}", **options)
+        import time
+
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        start = None if start_lat is None else Geodetic(start_lat, start_lon, 0.0)
+        bundled = BundledSim(map_path, speedup=speedup, start=start,
+                             report_path=Path(log_dir) / f"sim-report-{stamp}.json",
+                             log_path=Path(log_dir) / f"sim-{stamp}.txt")
+        with bundled:
+            print(f"started the bundled sim on {bundled.connection} at {speedup:g}x speed", file=out, flush=True)
+            code = fly(setting, goal_ne, connection=bundled.connection, **options)
+        report = bundled.report()
+        if report is not None:
+            print(sim_report_summary(report, goal_ne), file=out)
+        return code
+    start_ne = (0.0, 0.0)
+    if start_lat is not None:
+        start_ne = geodetic_to_ned(Geodetic(start_lat, start_lon, 0.0), setting.home)[:2]
+    if goal_alt is not None:
+        check_endpoint(setting, "goal", *goal_ne, on_map_only=True)
+    plan = make_plan(setting, start_ne, goal_ne, planner, goal_alt_m=goal_alt, seed=seed)
+    if json_output:
+        json.dump(plan_document(setting, plan, start_ne, goal_ne), out)
+        out.write("\n")
+    else:
+        print_plan(plan, out)
+    if plot:
+        save_plot(plot, setting, plan)
+        if not json_output:
+            print(f"plot written to {plot}", file=out)
+    return EXIT_OK
+
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Show ``(default: ...)`` only where there is a default worth showing."""
+
+    def _get_help_string(self, action):
+        if action.default is None or action.default is False:
+            return action.help
+        return super()._get_help_string(action)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="motion_planning.py",
+        description="Plan a collision-free route through the city map and fly it over MAVLink.",
+        formatter_class=_HelpFormatter,
+    )
+    where = parser.add_argument_group("where to go")
+    where.add_argument("--goal_lat", type=float, help="goal latitude in degrees (required)")
+    where.add_argument("--goal_lon", type=float, help="goal longitude in degrees (required)")
+    where.add_argument("--alt", type=float, default=5.0, help="flight altitude in metres above the ground")
+    where.add_argument("--safety", type=float, default=5.0, help="minimum distance to buildings in metres")
+    where.add_argument("--start_lat", type=float,
+                       help="start latitude (with --plan-only or --sim; default: the map's home)")
+    where.add_argument("--start_lon", type=float,
+                       help="start longitude (with --plan-only or --sim; default: the map's home)")
+    where.add_argument("--goal_alt", type=float, help="goal altitude in metres, e.g. a rooftop (grid3d planner)")
+    how = parser.add_argument_group("how to plan")
+    how.add_argument("--map", dest="map_path", default=str(DEFAULT_MAP), help="colliders.csv map file")
+    how.add_argument("--planner", choices=PLANNERS, default="grid", help="planning algorithm")
+    how.add_argument("--seed", type=int, default=0, help="random seed for sampling planners")
+    link = parser.add_argument_group("the vehicle")
+    link.add_argument("--connection", help="pymavlink connection string, e.g. tcp:127.0.0.1:5760 or "
+                      "udpin:0.0.0.0:14540 (default: tcp:HOST:PORT)")
+    link.add_argument("--host", default="127.0.0.1", help="autopilot host (classic flag; see --connection)")
+    link.add_argument("--port", type=int, default=5760, help="autopilot TCP port (classic flag)")
+    link.add_argument("--sim", action="store_true", help="start the bundled simulator, fly against it, stop it")
+    link.add_argument("--speedup", type=float, default=5.0, help="with --sim: simulated seconds per wall second")
+    link.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for the autopilot's heartbeat")
+    link.add_argument("--arm-timeout", dest="arm_timeout", type=float, default=60.0,
+                      help="seconds to keep asking to arm while the autopilot is not ready")
+    link.add_argument("--link-timeout", dest="link_timeout", type=float, default=30.0,
+                      help="seconds to wait for a link lost in flight to come back before giving up "
+                      "(the autopilot's own failsafe then owns the vehicle)")
+    link.add_argument("--log-dir", dest="log_dir", default="logs", help="where navigation logs and tlogs go")
+    output = parser.add_argument_group("output")
+    output.add_argument("--plan-only", dest="plan_only", action="store_true", help="plan and print; no drone")
+    output.add_argument("--json", dest="json_output", action="store_true", help="print the plan as one JSON object")
+    output.add_argument("--plot", metavar="FILE.png", help="draw the map, plan (and flown track) to a PNG")
+    output.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = vars(build_parser().parse_args(argv))
+    logging.basicConfig(
+        level=logging.INFO if args.pop("verbose") else logging.WARNING,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    # SIGTERM (a service manager, `kill`) is handled like Ctrl-C: land first, stop the bundled sim, then exit.
+    restore = None
+    if threading.current_thread() is threading.main_thread():
+        restore = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        return run(**args)
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # e.g. `... --json | head`: the reader left; say nothing more
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAILED
+    finally:
+        if restore is not None:
+            signal.signal(signal.SIGTERM, restore)
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

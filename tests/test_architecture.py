@@ -1,0 +1,110 @@
+"""The layer rules of ARCHITECTURE.md, checked on the source: every import of every module, however deep.
+
+Each rule names who may import what; a test fails with the offending file, line and import.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _module_name(path: Path, root: Path = ROOT) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _imports(path: Path, root: Path = ROOT) -> list[tuple[int, str]]:
+    """``(line, absolute module name)`` of every import in the file, including those inside functions."""
+    module = _module_name(path, root)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            out.append((node.lineno, base))
+            out += [(node.lineno, f"{base}.{alias.name}") for alias in node.names]  # `from pkg import module`
+    return out
+
+
+def _within(name: str, prefixes: tuple[str, ...]) -> bool:
+    return any(name == x or name.startswith(x + ".") for x in prefixes)
+
+
+def _sources(*prefixes: str, root: Path = ROOT) -> list[Path]:
+    files = [p for p in root.rglob("*.py") if not {".venv", "build"} & set(p.relative_to(root).parts)]
+    return sorted(p for p in files if _within(_module_name(p, root), prefixes))
+
+
+def _violations(importers: list[Path], forbidden: tuple[str, ...], root: Path = ROOT) -> list[str]:
+    return [f"{path.relative_to(root)}:{line} imports {name}"
+            for path in importers for line, name in _imports(path, root) if _within(name, forbidden)]
+
+
+CLIENT = ("skyroute", "motion_planning", "planning_utils")
+
+
+def test_the_sim_imports_nothing_of_the_client():
+    assert _sources("sim"), "no sim sources found"
+    assert _violations(_sources("sim"), CLIENT) == []
+
+
+def test_the_client_never_imports_the_sim():
+    # --sim starts `python -m sim` as a child process; an import would let a shared bug hide.
+    assert _violations(_sources(*CLIENT), ("sim",)) == []
+
+
+def test_the_package_never_imports_the_top_level_entry_points():
+    assert _violations(_sources("skyroute"), ("motion_planning", "planning_utils")) == []
+
+
+def test_planning_never_imports_flight_vehicle_view_or_cli():
+    layers_above = ("skyroute.flight", "skyroute.vehicle", "skyroute.view", "skyroute.cli")
+    assert _violations(_sources("skyroute.planning", "skyroute.maps"), layers_above) == []
+
+
+def test_the_mission_talks_to_the_vehicle_only_through_its_protocol():
+    assert _violations(_sources("skyroute.flight"), ("skyroute.vehicle", "skyroute.planning", "skyroute.cli",
+                                                     "pymavlink")) == []
+
+
+def test_the_vehicle_link_knows_nothing_of_planning_or_missions():
+    assert _violations(_sources("skyroute.vehicle"), ("skyroute.planning", "skyroute.flight", "skyroute.cli")) == []
+
+
+@pytest.mark.parametrize(("dependency", "owners"), [
+    ("pymavlink", ("skyroute.vehicle",)),
+    ("matplotlib", ("skyroute.view.plotting",)),
+    ("numba", ("skyroute.planning.kernels", "skyroute.planning.any_angle", "skyroute.planning.grid3d")),
+    ("networkx", ("skyroute.planning.graphs", "skyroute.planning.sampling")),
+    ("skimage", ("skyroute.planning.graphs",)),
+    ("scipy", ("skyroute.planning.graphs", "skyroute.planning.sampling")),
+    ("pymap3d", ("skyroute.frames",)),
+])
+def test_each_third_party_dependency_has_its_owners_only(dependency, owners):
+    client = _sources(*CLIENT)
+    assert _violations(client, (dependency,)), f"{dependency} is imported nowhere: the rule would check nothing"
+    others = [p for p in client if not _within(_module_name(p), owners)]
+    assert _violations(others, (dependency,)) == []
+
+
+def test_the_rule_checker_sees_nested_and_relative_imports(tmp_path):
+    pkg = tmp_path / "skyroute" / "flight"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "probe.py").write_text("def f():\n    from ..vehicle import link\n    import pymavlink.mavutil\n")
+    found = _violations(_sources("skyroute.flight", root=tmp_path), ("skyroute.vehicle", "pymavlink"), tmp_path)
+    assert found == ["skyroute/flight/probe.py:2 imports skyroute.vehicle",
+                     "skyroute/flight/probe.py:2 imports skyroute.vehicle.link",
+                     "skyroute/flight/probe.py:3 imports pymavlink.mavutil"]

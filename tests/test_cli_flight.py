@@ -292,33 +292,32 @@ def test_bad_goal_is_refused_before_arming(start_sim, tmp_path, capsys, goal, wh
     assert_never_armed(report)
 
 
-def test_no_path_disarms_and_never_takes_off(start_sim, tmp_path, capsys, walled_goal_map):
+def test_no_path_is_found_before_arming(start_sim, tmp_path, capsys, walled_goal_map):
     sim = start_sim(map_path=walled_goal_map)
     code = fly(sim, tmp_path, "--map", str(walled_goal_map), goal=(40.0, 0.0))
     report = sim.stop()
     err = one_line(capsys.readouterr().err)
     assert code == mp.EXIT_NO_PATH
-    assert err.startswith("error: no path from ") and "never took off" in err
-    assert [c["result_name"] for c in arm_commands(report)] == ["MAV_RESULT_ACCEPTED"]  # armed, then planned
-    assert report["armed_time_s"] > 0
-    assert report["airborne_time_s"] == 0 and report["max_altitude_m"] is None and not report["landings"]
+    assert err.startswith("error: no path from ") and "never armed" in err
+    assert_never_armed(report)  # planned first: nothing to undo
+    assert report["max_altitude_m"] is None and not report["landings"]
     assert_down_and_disarmed(report)
 
 
 def test_arm_refused_until_the_timeout_quotes_the_autopilot(start_sim, tmp_path, capsys, block_map):
     sim = start_sim(map_path=block_map, faults=FaultConfig(deny_arm_count=1000))
     t0 = time.monotonic()
-    code = fly(sim, tmp_path, "--map", str(block_map), "--arm-timeout", "3", goal=GOAL_BEHIND_BLOCK)
+    code = fly(sim, tmp_path, "--map", str(block_map), "--arm-timeout", "5", goal=GOAL_BEHIND_BLOCK)
     elapsed_s = time.monotonic() - t0
     report = sim.stop()
     err = one_line(capsys.readouterr().err)
     assert code == mp.EXIT_BAD_INPUT
-    assert err.startswith("error: the autopilot refused to arm for 3 s")
+    assert err.startswith("error: the autopilot refused to arm for 5 s")
     assert "TEMPORARILY_REJECTED" in err and "fault injection: arming denied" in err  # the sim's STATUSTEXT
     refusals = arm_commands(report)
     assert len(refusals) >= 2 and {c["result_name"] for c in refusals} == {"MAV_RESULT_TEMPORARILY_REJECTED"}
     assert report["armed_time_s"] == 0 and report["final"]["on_ground"] and not report["final"]["armed"]
-    assert elapsed_s < 3.0 + 5.0
+    assert elapsed_s < 5.0 + 5.0
 
 
 def test_arm_refused_twice_then_accepted_flies(start_sim, tmp_path, capsys, block_map):
@@ -337,18 +336,18 @@ def test_arm_refused_twice_then_accepted_flies(start_sim, tmp_path, capsys, bloc
 
 
 def test_link_lost_in_flight_gives_up_after_link_timeout(start_sim, tmp_path, capsys, block_map):
-    # At 3x the ~130 m flight takes ~10 s of wall time; it starts ~1.5 s after the sim. The link goes silent 4 s
-    # (wall) after the sim starts, for good: the vehicle notices after 3 s without heartbeats, the mission waits
+    # At 3x the ~130 m flight takes ~10 s of wall time; it takes off ~3 s after the sim starts. The link goes
+    # silent 6 s (wall) after the sim starts, for good: the vehicle notices after 2 s of silence, the mission waits
     # --link-timeout 2 s more, then reports. The strict sim's own failsafe (offboard loss -> hold) owns the vehicle.
-    sim = start_sim(map_path=block_map, speedup=3.0, faults=FaultConfig(outage_start_s=4.0, outage_duration_s=600.0))
+    sim = start_sim(map_path=block_map, speedup=3.0, faults=FaultConfig(outage_start_s=6.0, outage_duration_s=600.0))
     t0 = time.monotonic()
     code = fly(sim, tmp_path, "--map", str(block_map), "--link-timeout", "2", goal=GOAL_BEHIND_BLOCK)
     elapsed_s = time.monotonic() - t0
     report = sim.stop()
     err = one_line(capsys.readouterr().err)
     assert code == mp.EXIT_FAILED
-    assert err.startswith("error: mission failed: link lost in state ") and "for 2 s" in err and "failsafe" in err
-    assert elapsed_s < 4.0 + 3.0 + 2.0 + 3.0
+    assert err.startswith("error: mission failed: the link was lost") and "for 2 s" in err and "failsafe" in err
+    assert elapsed_s < 6.0 + 2.0 + 2.0 + 3.0
     # truth: it was flying when the link went, the autopilot's failsafe holds it, nothing was hit
     assert report["airborne_time_s"] > 0 and not report["final"]["on_ground"]
     assert any(e["kind"] == "failsafe" for e in report["events"]) and report["final"]["mode"] != "OFFBOARD"

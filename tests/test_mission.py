@@ -1112,24 +1112,38 @@ def test_a_bug_in_flight_lands_then_propagates_as_itself(clock):
 
 
 # ----------------------------------------------------------------------------- the final waypoint's tolerance
-def test_hovering_half_a_metre_off_the_goal_lands_there_after_the_leg_timeout(clock):
-    # GPS noise or a biased position controller: the vehicle settles 0.5 m east of the goal, outside the 0.3 m
-    # tolerance. Default timeouts: the last leg (40 m) gets 60 s + 40 m / 1 m/s = 100 s, then it lands there.
-    v = FakeVehicle(clock, start=(-100.0, 50.0))
+def biased(v, offset_east_m):
+    """The vehicle settles ``offset_east_m`` east of a position-only setpoint (GPS noise, a biased controller)."""
     real_goto = v.goto_local
 
-    def biased_goto(north_m, east_m, down_m, yaw_rad, velocity_ned=None):  # the goal comes without a velocity
-        real_goto(north_m, east_m + (0.5 if velocity_ned is None else 0.0), down_m, yaw_rad, velocity_ned)
+    def goto(north_m, east_m, down_m, yaw_rad, velocity_ned=None):  # the goal comes without a velocity
+        real_goto(north_m, east_m + (offset_east_m if velocity_ned is None else 0.0), down_m, yaw_rad, velocity_ned)
 
-    v.goto_local = biased_goto
+    v.goto_local = goto
+
+
+def test_settling_half_a_metre_off_the_goal_lands_there_after_settle_s(clock):
+    # outside the 0.3 m tolerance but within twice it, still: accepted once it has stayed there settle_s = 3 s
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    biased(v, 0.5)
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and result.landing_error_m == pytest.approx(0.5, abs=0.01)
+    # climb 2 s + 60 m + 40 m at 5 m/s, then 3 s settled (the last 0.5 m at 5 m/s starts it), 10 m down at 1.5 m/s
+    assert clock.now == pytest.approx(2 + 20 + 3 + 10 / 1.5, abs=1.0)
+
+
+def test_hovering_a_metre_off_the_goal_lands_there_after_the_leg_timeout(clock):
+    # 0.8 m east of the goal: never accepted; the last leg (40 m) gets 60 s + 40 m / 1 m/s = 100 s, then it lands
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    biased(v, 0.8)
     with pytest.raises(m.FlightAborted, match=r"waypoint 3 \(60\.0 N, 40\.0 E, 10\.0 m\) not reached in time "
-                                              r"\(100 s\): 0\.50 m off horizontally.*landed at \(60\.0 N, 40\.5 E\)"
+                                              r"\(100 s\): 0\.80 m off horizontally.*landed at \(60\.0 N, 40\.8 E\)"
                        ) as err:
         make_mission(v, clock, straight_plan([])).run()
     assert "the goal needs <= 0.3 m" in str(err.value)
     result = err.value.result
     assert result.final_state is S.MANUAL and not result.completed
-    assert result.landing_error_m == pytest.approx(0.5, abs=0.01)
+    assert result.landing_error_m == pytest.approx(0.8, abs=0.01)
     assert v.calls[-3:] == ["land", "disarm", "release_control"] and v.telemetry.on_ground
     # climb 2 s + 60 m at 5 m/s + the last leg's 100 s timeout + 10 m descent at 1.5 m/s
     assert clock.now == pytest.approx(2 + 12 + 100 + 10 / 1.5, abs=1.0)

@@ -340,10 +340,12 @@ def test_a_fresh_ardupilot_is_not_ready_until_its_ekf_uses_gps():
     r = vh.readiness(t, now_s=10.0)
     assert not r.ready
     assert r.missing == ("a 3D GPS fix (0 satellites)", "a global position estimate", "a home position",
-                         "a local position estimate", "the autopilot's pre-arm checks")
+                         "a local position estimate", "a landed state (EXTENDED_SYS_STATE)",
+                         "the autopilot's pre-arm checks")
     assert r.reasons == ("PreArm: Need Position Estimate",)
     ready = vh.Telemetry(last_heartbeat_s=0.0, lat_deg=37.0, lon_deg=-122.0, global_rx_s=9.9, north_m=0.0,
-                         east_m=0.0, down_m=0.0, local_rx_s=9.9, home=MAP_ORIGIN, gps_fix_type=3, prearm_ok=True)
+                         east_m=0.0, down_m=0.0, local_rx_s=9.9, home=MAP_ORIGIN, gps_fix_type=3, prearm_ok=True,
+                         landed_rx_s=9.9)
     assert vh.readiness(ready, now_s=10.0).ready
     assert "a fresh local position" in vh.readiness(ready, now_s=20.0).describe()  # the stream stopped
 

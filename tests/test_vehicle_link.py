@@ -152,6 +152,7 @@ class FakeAutopilot:
                                                                         0))
             if not self.on_request_only or mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED in self.requested:
                 self._send(enc, mavlink.MAVLink_local_position_ned_message(1000, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+            self._send(enc, mavlink.MAVLink_extended_sys_state_message(0, mavlink.MAV_LANDED_STATE_ON_GROUND))
 
     def _ack(self, enc, msg, result, delay_s=0.0):
         self._send(enc, mavlink.MAVLink_command_ack_message(msg.command, result, 0, 0, msg.get_srcSystem(),

@@ -127,8 +127,8 @@ def fly(
         except vehicle_mod.VehicleError as exc:
             raise UserError(f"no autopilot answered on {connection}: {exc}") from None
         try:
-            say(f"connected to a {drone.autopilot.name} autopilot (system {drone.target[0]}); logs in {nav_path} "
-                f"and {tlog_path}")
+            name = {"PX4": "a PX4", "ARDUPILOT": "an ArduPilot"}.get(drone.autopilot.name, "a generic MAVLink")
+            say(f"connected to {name} autopilot (system {drone.target[0]}); logs in {nav_path} and {tlog_path}")
             mission = mission_mod.Mission(
                 drone, plan_from, altitude_m=setting.altitude_m, map_origin=setting.home,
                 no_path_errors=(PlanRefused,), vehicle_errors=(vehicle_mod.VehicleError,),

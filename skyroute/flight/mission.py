@@ -146,7 +146,8 @@ class Mission(RecoveryMixin, LandingMixin):
                  landing_timeout_s: float = 120.0, disarm_timeout_s: float = 15.0,
                  link_lost_timeout_s: float = 30.0, control_retries: int = 3, max_recoveries: int = 10,
                  resume_off_path_m: float = 2.0,
-                 goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, altitude_tolerance_m: float = 1.0,
+                 goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, settle_s: float = 3.0,
+                 altitude_tolerance_m: float = 1.0,
                  corner_cut_m: float = 0.5, cruise_mps: float = 10.0, accel_mps2: float = 3.0,
                  lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5, lead_s: float = 0.2,
                  velocity_lag_s: float = 0.15, poll_s: float = 0.02, track_interval_s: float = 0.2,
@@ -166,7 +167,8 @@ class Mission(RecoveryMixin, LandingMixin):
         self.landing_timeout_s, self.disarm_timeout_s = landing_timeout_s, disarm_timeout_s
         self.link_lost_timeout_s, self.control_retries = link_lost_timeout_s, control_retries
         self.max_recoveries, self.resume_off_path_m = max_recoveries, resume_off_path_m
-        self.goal_tolerance_m, self.stop_speed_mps = goal_tolerance_m, stop_speed_mps
+        self.goal_tolerance_m, self.stop_speed_mps, self.settle_s = goal_tolerance_m, stop_speed_mps, settle_s
+        self._near_goal_since = math.nan
         self.altitude_tolerance_m, self.corner_cut_m = altitude_tolerance_m, corner_cut_m
         self.speeds = preflight.Speeds(cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps)
         self.lead_s, self.velocity_lag_s = lead_s, velocity_lag_s
@@ -350,6 +352,9 @@ class Mission(RecoveryMixin, LandingMixin):
         self._say(preflight.describe_offset(self._offset, ground, surface if math.isfinite(surface) else 0.0))
         self.limits = self.vehicle.flight_limits()
         self.speeds = preflight.fit_speeds(self.speeds, self.limits)
+        response_s = float(getattr(self.limits, "response_s", math.nan))
+        if math.isfinite(response_s):  # take the velocity along the path as far ahead as the autopilot lags
+            self.velocity_lag_s = max(self.velocity_lag_s, response_s)
         if self.limits.leaves_flying:
             self._say(f"warning: {self.limits.link_loss}")
         self._fire(E.READY)
@@ -474,6 +479,8 @@ class Mission(RecoveryMixin, LandingMixin):
         i = min(max(i, 0), last)
         here = self._map_position()
         deadline, start_s = self._waypoint_deadline(waypoints[i], (here.north_m, here.east_m))
+        ff_mps, ff_at = 0.0, self.clock()
+        self._near_goal_since = math.nan
         while True:
             p = self._map_position()
             self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), self._progress_s)
@@ -491,11 +498,13 @@ class Mission(RecoveryMixin, LandingMixin):
             velocity = (t.local_v_north_mps, t.local_v_east_mps, -t.local_v_down_mps)
             rate = self._autopilot_rate()
             ahead_s = (self.lead_s + rate * (self.poll_s + float(getattr(self.vehicle, "round_trip_s", 0.0))))
+            now = self.clock()
             sp = follower.steer(path, s_m=self._progress_s, ref_s_m=ref_s, position=(p.north_m, p.east_m,
                                 p.altitude_m), velocity=velocity, ahead_s=ahead_s, accel_mps2=s.accel_mps2,
                                 velocity_lag_s=self.velocity_lag_s, heading_rad=heading, limits=self.limits,
-                                clearance_fn=self.clearance_fn)
+                                clearance_fn=self.clearance_fn, previous_mps=ff_mps, dt_s=rate * (now - ff_at))
             ref_s, heading = sp.ref_s, sp.heading_rad
+            ff_mps, ff_at = (0.0 if sp.velocity is None else float(np.linalg.norm(sp.velocity))), now
             target = self._to_local(*sp.position)
             velocity_ned = None if sp.velocity is None else (float(sp.velocity[0]), float(sp.velocity[1]),
                                                              float(-sp.velocity[2]))
@@ -550,9 +559,19 @@ class Mission(RecoveryMixin, LandingMixin):
         return why
 
     def _at_goal(self, wp: np.ndarray) -> bool:
+        """Over the goal: within ``goal_tolerance_m`` and slower than ``stop_speed_mps``; or settled, within twice
+        the tolerance for ``settle_s`` (position noise, e.g. PX4's, keeps some vehicles out of the strict box)."""
         p = self._map_position()
         t = self.vehicle.telemetry
         horizontal = math.hypot(wp[0] - p.north_m, wp[1] - p.east_m)
         speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
-        return (horizontal <= self.goal_tolerance_m and abs(wp[2] - p.altitude_m) <= self.altitude_tolerance_m
-                and speed <= self.stop_speed_mps)
+        if abs(wp[2] - p.altitude_m) > self.altitude_tolerance_m:
+            return False
+        if horizontal <= self.goal_tolerance_m and speed <= self.stop_speed_mps:
+            return True
+        if horizontal > 2.0 * self.goal_tolerance_m or speed > 2.0 * self.stop_speed_mps:
+            self._near_goal_since = math.nan
+            return False
+        if math.isnan(self._near_goal_since):
+            self._near_goal_since = self.clock()
+        return self.clock() - self._near_goal_since >= self.settle_s

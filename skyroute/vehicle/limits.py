@@ -53,7 +53,8 @@ class FlightLimits:
     unknown). After our last setpoint the autopilot keeps acting on it for ``hold_last_s`` (moving a velocity
     target on, or overshooting a position target by the feed-forward), then brakes at ``brake_mps2``: see
     :meth:`coast_m`. ``link_loss`` says in words what happens when our link is lost; ``leaves_flying`` is True
-    when that leaves the vehicle in the air (hovering) until its battery runs out.
+    when that leaves the vehicle in the air (hovering) until its battery runs out. ``response_s``: how long its
+    velocity lags a new feed-forward (measured on SITL: PX4 ~0.6 s braking from 9 m/s; NaN when unknown).
     """
 
     cruise_mps: float = math.inf
@@ -62,6 +63,7 @@ class FlightLimits:
     brake_mps2: float = 2.5
     link_loss: str = "unknown: the autopilot's failsafe parameters were not read"
     leaves_flying: bool = False
+    response_s: float = math.nan
     params: dict[str, float] = field(default_factory=dict)
 
     def coast_m(self, speed_mps: float) -> float:
@@ -117,7 +119,7 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
         return FlightLimits(
             cruise_mps=get("WPNAV_SPEED") / 100.0, accel_mps2=accel, hold_last_s=get("GUID_TIMEOUT"),
             brake_mps2=accel, link_loss=link_loss + assumed("FS_GCS_ENABLE", "GUID_TIMEOUT"), leaves_flying=flying,
-            params=dict(params))
+            response_s=0.3, params=dict(params))
     offboard = int(get("COM_OBL_RC_ACT"))
     datalink = int(get("NAV_DLL_ACT"))
     link_loss = (f"after {get('COM_OF_LOSS_T'):g} s without setpoints PX4 switches to "
@@ -132,4 +134,4 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
         cruise_mps=get("MPC_XY_VEL_MAX"), accel_mps2=accel,
         hold_last_s=max(get("COM_OF_LOSS_T"), 1.0 / max(get("MPC_XY_P"), 0.1)), brake_mps2=accel,
         link_loss=link_loss + assumed("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_DLL_ACT"), leaves_flying=flying,
-        params=dict(params))
+        response_s=0.6 if autopilot is Autopilot.PX4 else math.nan, params=dict(params))

@@ -50,10 +50,10 @@ def readiness(t: Telemetry, now_s: float, *, recent_s: float = 15.0) -> Readines
 
     Needed: a 3D GPS fix (when the autopilot reports GPS_RAW_INT), a global position estimate, a home position,
     a local position estimate (the EKF origin is set once both positions stream; GPS_GLOBAL_ORIGIN is recorded
-    when the autopilot sends it, not required: PX4 sends it only on request), both positions fresh, and the
-    pre-arm checks passing when SYS_STATUS reports them.
+    when the autopilot sends it, not required: PX4 sends it only on request), both positions fresh, the landed
+    state (whether it stands on the ground), and the pre-arm checks passing when SYS_STATUS reports them.
 
-    >>> readiness(Telemetry(), now_s=0.0).missing
+    >>> readiness(Telemetry(), now_s=0.0).missing[:4]
     ('a heartbeat', 'a global position estimate', 'a home position', 'a local position estimate')
     """
     missing = []
@@ -71,6 +71,8 @@ def readiness(t: Telemetry, now_s: float, *, recent_s: float = 15.0) -> Readines
         missing.append("a local position estimate")
     elif not now_s - t.local_rx_s <= FRESH_S:
         missing.append("a fresh local position (the stream stopped)")
+    if math.isnan(t.landed_rx_s):
+        missing.append("a landed state (EXTENDED_SYS_STATE)")
     if t.prearm_ok is False:
         missing.append("the autopilot's pre-arm checks")
     return Readiness(tuple(missing), recent_reasons(t.statustexts, now_s - recent_s) if missing else ())

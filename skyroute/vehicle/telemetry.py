@@ -99,6 +99,7 @@ class Telemetry:
     pitch_rad: float = _NAN
     heading_rad: float = _NAN
     landed_state: LandedState = LandedState.UNDEFINED
+    landed_rx_s: float = _NAN
     battery_voltage_v: float = _NAN
     battery_remaining_pct: float = _NAN
     prearm_ok: bool | None = None
@@ -217,7 +218,7 @@ def telemetry_from_extended_sys_state(t: Telemetry, msg, now_s: float) -> Teleme
         landed = LandedState(msg.landed_state)
     except ValueError:
         landed = LandedState.UNDEFINED
-    return dataclasses.replace(t, landed_state=landed)
+    return dataclasses.replace(t, landed_state=landed, landed_rx_s=now_s)
 
 
 def telemetry_from_sys_status(t: Telemetry, msg, now_s: float) -> Telemetry:

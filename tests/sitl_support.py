@@ -275,6 +275,7 @@ class Monitor:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._armed, self._mode = False, ""
+        self.sysid = None  # PX4 SITL instance N is system N + 1; learnt from the first autopilot heartbeat
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
@@ -285,20 +286,27 @@ class Monitor:
         next_ask, next_beat = 0.0, 0.0
         while not self._stop.is_set():
             now = time.monotonic()
-            if now >= next_beat:
-                next_beat = now + 1.0
-                mav.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-            if now >= next_ask:  # ArduPilot streams on this port only once asked
-                next_ask = now + 5.0
-                mav.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                          mavutil.mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 1e5, 0, 0, 0, 0, 0)
-            try:
+            try:  # a UDP peer not listening yet answers with ICMP: OSError on the next send or receive
+                if now >= next_beat:
+                    next_beat = now + 1.0
+                    mav.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0,
+                                           0, 0)
+                if now >= next_ask and self.sysid is not None:  # ArduPilot streams on this port only once asked
+                    next_ask = now + 5.0
+                    mav.mav.command_long_send(self.sysid, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                              mavutil.mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 1e5, 0, 0, 0, 0, 0)
                 msg = mav.recv_match(blocking=True, timeout=0.1)
             except OSError:
+                time.sleep(0.1)
                 continue
-            if msg is None or msg.get_srcSystem() != 1 or msg.get_srcComponent() != 1:
+            if msg is None:
                 continue
             kind = msg.get_type()
+            if self.sysid is None and kind == "HEARTBEAT" and msg.get_srcComponent() == 1 \
+                    and msg.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID:
+                self.sysid = msg.get_srcSystem()
+            if msg.get_srcSystem() != self.sysid or msg.get_srcComponent() != 1:
+                continue
             if kind == "HEARTBEAT":
                 self._armed = bool(msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
                 self._mode = mavutil.mode_string_v10(msg)
@@ -312,8 +320,8 @@ class Monitor:
                                                math.hypot(msg.vx, msg.vy) / 100.0, self._armed, self._mode))
 
     def send(self, build) -> None:
-        """Send one message built by ``build(mav)`` on the monitor's own link (e.g. to land a vehicle)."""
-        build(self._mav.mav)
+        """Send one message built by ``build(mav, sysid)`` on the monitor's own link (e.g. to land a vehicle)."""
+        build(self._mav.mav, self.sysid)
 
     def close(self) -> None:
         self._stop.set()
@@ -336,6 +344,15 @@ class Monitor:
                 return s
             time.sleep(0.05)
         raise AssertionError(f"monitor: no {what} within {timeout_s:g} s (last {self.latest()})")
+
+    def landed_at(self, settle_s: float = 2.0, timeout_s: float = 60.0) -> tuple[float, float, float]:
+        """``(north_m, east_m, up_m)`` where the vehicle stands once disarmed: the median of ``settle_s`` of reports
+        (PX4 SIH's reported position jitters by ~0.5 m on the ground)."""
+        self.wait(lambda s: not s.armed, timeout_s, "disarmed vehicle")
+        since = time.monotonic()
+        time.sleep(settle_s)
+        points = np.array([(s.north_m, s.east_m, s.up_m) for s in self.track(since) if not s.armed])
+        return tuple(float(v) for v in np.median(points, axis=0))
 
     def min_clearance_m(self, since_s: float = -math.inf, above_m: float = 0.5, ignore=()) -> float:
         """Smallest distance from the reported track (while ``above_m`` above the ground) to any box but the

@@ -146,7 +146,8 @@ def run(
                              report_path=Path(log_dir) / f"sim-report-{stamp}.json",
                              log_path=Path(log_dir) / f"sim-{stamp}.txt")
         with bundled:
-            print(f"started the bundled sim on {bundled.connection} at {speedup:g}x speed", file=out, flush=True)
+            if not quiet:
+                print(f"started the bundled sim on {bundled.connection} at {speedup:g}x speed", file=out, flush=True)
             code = fly(setting, goal_ne, connection=bundled.connection, **options)
         report = bundled.report()
         if report is not None:

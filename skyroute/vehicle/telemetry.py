@@ -128,9 +128,10 @@ class Telemetry:
         """Landed: EXTENDED_SYS_STATE says ON_GROUND (or, without it, near home altitude), and not moving vertically.
 
         The vertical-speed check guards against a landed state that is a moment old: just after takeoff the
-        last EXTENDED_SYS_STATE may still say ON_GROUND while the vehicle climbs.
+        last EXTENDED_SYS_STATE may still say ON_GROUND while the vehicle climbs (at 1.5 m/s or more; a booting
+        PX4's estimate wanders at up to ~0.2 m/s while it stands).
         """
-        still = not abs(self.v_down_mps) >= 0.2  # an unknown (NaN) speed does not veto the landed state
+        still = not abs(self.v_down_mps) >= 0.5  # an unknown (NaN) speed does not veto the landed state
         if self.landed_state is not LandedState.UNDEFINED:
             return self.landed_state is LandedState.ON_GROUND and still
         return self.relative_alt_m < 0.3 and still

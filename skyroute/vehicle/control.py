@@ -33,6 +33,9 @@ class MavlinkVehicle(MavlinkLink):
     Takes :class:`~.link.MavlinkLink`'s parameters. Implements ``skyroute.flight.mission.Vehicle``.
     """
 
+    #: The map ground's altitude above sea level (m) the mission tied the map frame to; None before.
+    ground_amsl_m: float | None = None
+
     # ---------------------------------------------------------------------------------------------- state
     @property
     def in_control(self) -> bool:
@@ -48,8 +51,20 @@ class MavlinkVehicle(MavlinkLink):
         """What the vehicle still lacks for a mission (position estimates, home, pre-arm checks)."""
         return readiness(self.telemetry, time.monotonic())
 
-    def map_offset(self, map_origin: Geodetic, ground_amsl_m: float, timeout_s: float = 10.0) -> LocalNED:
-        """``map_ned - autopilot_local_ned`` (see :func:`~.telemetry.map_offset`) from fresh positions."""
+    def map_offset(self, map_origin: Geodetic, ground_amsl_m: float | None = None, timeout_s: float = 10.0
+                   ) -> LocalNED:
+        """``map_ned - autopilot_local_ned`` (see :func:`~.telemetry.map_offset`) from fresh positions.
+
+        ``ground_amsl_m`` (the map ground's altitude above sea level) is remembered for later calls without one
+        (e.g. the live view's); until the mission has given one, the home position's altitude stands in.
+        """
+        if ground_amsl_m is None:
+            ground_amsl_m = self.ground_amsl_m
+            if ground_amsl_m is None:
+                t = self.wait_for(lambda t: t.home is not None, timeout_s, "HOME_POSITION")
+                ground_amsl_m = t.home.alt_m
+        else:
+            self.ground_amsl_m = float(ground_amsl_m)
         now = time.monotonic()
         t = self.wait_for(lambda t: t.has_global and t.has_local and t.global_rx_s > now and t.local_rx_s > now,
                           timeout_s, "GLOBAL_POSITION_INT and LOCAL_POSITION_NED")

@@ -268,7 +268,7 @@ def test_the_feed_publishes_map_positions_speeds_plan_distance_and_events():
     assert s["mission_state"] == "WAYPOINT" and s["armed"] is True
     assert s["distance_to_go_m"] == pytest.approx(40.0 + 5.0)  # the last leg, then the descent
     assert message["plan"] == {"id": 1, "waypoints": [[0.0, 0.0, 5.0], [30.0, 0.0, 5.0], [30.0, 40.0, 5.0]]}
-    assert message["events"]["items"][0]["text"] == "MANUAL --START--> WAYPOINT"
+    assert message["events"]["items"][0]["text"] == "start: MANUAL -> WAYPOINT"
     assert message["track"]["items"] == [[1.0, 30.0, 0.0, 5.0]]
 
 

@@ -185,7 +185,8 @@ class FlightFeed:
         if new:
             self._history_sent += len(new)
             self.hub.extend("events", [
-                {"time_s": round(now_s, 3), "text": f"{old.name} --{event.name}--> {state.name}"}
+                {"time_s": round(now_s, 3),
+                 "text": f"{event.name.lower().replace('_', ' ')}: {old.name} -> {state.name}"}
                 for old, event, state in new])
 
     def _publish_extras(self) -> None:

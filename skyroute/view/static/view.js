@@ -74,7 +74,7 @@ function drawCity(msg) {
   const [gn, ge] = msg.goal || [0, 0];
   controls.target.copy(toScene(gn / 2, ge / 2, 0));
   const span = Math.max(150, Math.hypot(gn, ge));
-  camera.position.copy(toScene(gn / 2 - 0.9 * span, ge / 2 - 0.3 * span, 0.8 * span));
+  camera.position.copy(toScene(gn / 2 - 0.55 * span, ge / 2 - 0.15 * span, 0.75 * span));  // from the south, high
   controls.update();
 }
 
@@ -86,8 +86,8 @@ function drawPlan(plan) {
   if (points.length === 1) points.push(points[0].clone().add(new THREE.Vector3(0, 0.01, 0)));
   const path = new THREE.CurvePath();
   for (let i = 0; i + 1 < points.length; i++) path.add(new THREE.LineCurve3(points[i], points[i + 1]));
-  const tube = new THREE.Mesh(new THREE.TubeGeometry(path, Math.max(8, 4 * points.length), 0.8, 8, false),
-                              new THREE.MeshLambertMaterial({ color: 0x1f77b4 }));
+  const tube = new THREE.Mesh(new THREE.TubeGeometry(path, Math.max(8, 4 * points.length), 0.5, 8, false),
+                              new THREE.MeshLambertMaterial({ color: 0x1f77b4, transparent: true, opacity: 0.8 }));
   for (const old of plans) { old.material.color.set(0x9ecae1); old.material.transparent = true; old.material.opacity = 0.5; }
   plans.push(tube);
   scene.add(tube);
@@ -103,6 +103,24 @@ trackGeometry.setDrawRange(0, 0);
 const track = new THREE.Line(trackGeometry, new THREE.LineBasicMaterial({ color: 0xd62728 }));
 track.frustumCulled = false;
 scene.add(track);
+// The line is one pixel wide: the track is also drawn as a tube, in pieces of TUBE_BATCH points.
+const TUBE_BATCH = 10, trackMaterial = new THREE.MeshLambertMaterial({ color: 0xd62728 });
+let tubedUpTo = 0;
+function tubeTrack() {
+  if (view.trackLength - tubedUpTo < TUBE_BATCH) return;
+  const from = Math.max(0, tubedUpTo - 1), points = [];
+  for (let i = from; i < view.trackLength; i++) {
+    points.push(new THREE.Vector3(trackPositions[3 * i], trackPositions[3 * i + 1], trackPositions[3 * i + 2]));
+  }
+  const path = new THREE.CurvePath();
+  for (let i = 0; i + 1 < points.length; i++) {
+    if (points[i].distanceTo(points[i + 1]) > 1e-3) path.add(new THREE.LineCurve3(points[i], points[i + 1]));
+  }
+  if (path.curves.length > 0) {
+    scene.add(new THREE.Mesh(new THREE.TubeGeometry(path, 2 * path.curves.length, 0.7, 6, false), trackMaterial));
+  }
+  tubedUpTo = view.trackLength;
+}
 
 function appendTrack(chunk) {
   if (chunk.from !== view.trackLength) console.warn(`track: expected ${view.trackLength}, got ${chunk.from}`);
@@ -120,6 +138,7 @@ function appendTrack(chunk) {
   }
   trackGeometry.attributes.position.needsUpdate = true;
   trackGeometry.setDrawRange(0, view.trackLength);
+  tubeTrack();
 }
 
 // ---------------------------------------------------------------------------------------------- vehicle
@@ -209,7 +228,7 @@ function showEvents(chunk) {
     li.textContent = e.text;
     list.prepend(li);
   }
-  while (list.children.length > 8) list.lastChild.remove();
+  while (list.children.length > 5) list.lastChild.remove();
 }
 
 // ------------------------------------------------------------------------------------------------ wire

@@ -862,6 +862,28 @@ def test_a_mode_change_we_did_not_ask_for_is_taken_back_at_once(clock):
     assert (S.WAYPOINT, E.CONTROL_LOST, S.RECOVERING) in result.history
 
 
+def test_a_vehicle_that_stops_following_in_our_mode_is_given_its_mode_again(clock):
+    # the autopilot still says OFFBOARD but ignores our setpoints (it dropped our stream without saying so)
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    frozen = []
+
+    def freeze():
+        frozen.append(True)
+        v.speed_mps = 0.0
+
+    clock.at(8.0, freeze)
+    real_take = v.take_control
+
+    def take_control():
+        real_take()
+        v.speed_mps = 5.0  # re-entering the mode makes it follow again
+
+    v.take_control = take_control
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and v.calls.count("take_control") == 1
+    assert (S.WAYPOINT, E.CONTROL_LOST, S.RECOVERING) in result.history
+
+
 def test_a_pilot_taking_over_is_handed_over(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     clock.at(8.0, lambda: setattr(v, "mode", "posctl"))  # position mode: we never select it

@@ -147,7 +147,7 @@ class Mission(RecoveryMixin, LandingMixin):
                  link_lost_timeout_s: float = 30.0, control_retries: int = 3, max_recoveries: int = 10,
                  resume_off_path_m: float = 2.0,
                  goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, settle_s: float = 3.0,
-                 trim_gain: float = 0.4, max_trim_m: float = 1.5,
+                 trim_gain: float = 0.4, max_trim_m: float = 1.5, stuck_mps: float = 1.0, stuck_s: float = 3.0,
                  altitude_tolerance_m: float = 1.0,
                  corner_cut_m: float = 0.5, cruise_mps: float = 10.0, accel_mps2: float = 3.0,
                  lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5, lead_s: float = 0.2,
@@ -171,6 +171,7 @@ class Mission(RecoveryMixin, LandingMixin):
         self.goal_tolerance_m, self.stop_speed_mps, self.settle_s = goal_tolerance_m, stop_speed_mps, settle_s
         self._near_goal_since = math.nan
         self.trim_gain, self.max_trim_m = trim_gain, max_trim_m
+        self.stuck_mps, self.stuck_s, self._stuck_since = stuck_mps, stuck_s, math.nan
         self._trim_m = np.zeros(2)
         self.altitude_tolerance_m, self.corner_cut_m = altitude_tolerance_m, corner_cut_m
         self.speeds = preflight.Speeds(cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps)
@@ -523,7 +524,22 @@ class Mission(RecoveryMixin, LandingMixin):
                                                              float(-sp.velocity[2]))
             self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading, velocity_ned=velocity_ned)
             self._say(self._flying_line(path, t), every=True)
+            self._check_following(ff_mps, t)
             self._tick()
+
+    def _check_following(self, commanded_mps: float, t) -> None:
+        """A vehicle in our mode that stands still for ``stuck_s`` while told to fly at ``stuck_mps`` or more has
+        stopped following (e.g. an autopilot that dropped our stream without saying so): take control again."""
+        speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
+        if commanded_mps < self.stuck_mps or speed > self.stop_speed_mps:
+            self._stuck_since = math.nan
+            return
+        if math.isnan(self._stuck_since):
+            self._stuck_since = self.clock()
+        elif self.clock() - self._stuck_since >= self.stuck_s:
+            self._stuck_since = math.nan
+            self._recover(f"the vehicle stopped following our setpoints (told {commanded_mps:.1f} m/s, standing "
+                          "still)", link_lost=False, retake=True)
 
     def _trim(self, goal: np.ndarray, p: LocalNED, t, dt_s: float) -> np.ndarray:
         """The hold position over ``goal``, moved against the vehicle's steady offset from it (integral action at

@@ -58,7 +58,7 @@ class RecoveryMixin:
         self._say("the link is back")
         self.sleep(max(self.poll_s, 0.3))  # let a heartbeat and a position in after the outage
 
-    def _recover(self, why: str, *, link_lost: bool) -> None:
+    def _recover(self, why: str, *, link_lost: bool, retake: bool = False) -> None:
         """RECOVERING: wait for the link, read the vehicle's real state, take control back; raises _Resumed."""
         self._fire(E.LINK_LOST if link_lost else E.CONTROL_LOST)
         self.result.recoveries += 1
@@ -88,7 +88,7 @@ class RecoveryMixin:
         if self.result.recoveries > self.max_recoveries:
             self._fire(E.ABORT)
             raise _Abort(f"{why}: control lost {self.result.recoveries} times, giving up")
-        if kind != "ours":
+        if kind != "ours" or retake:
             self._take_control(why)
         self._fire(E.RESUMED)
         self._say("control taken back: flying on from where the vehicle is")

@@ -884,6 +884,35 @@ def test_a_vehicle_that_stops_following_in_our_mode_is_given_its_mode_again(cloc
     assert (S.WAYPOINT, E.CONTROL_LOST, S.RECOVERING) in result.history
 
 
+def test_a_local_frame_that_jumps_in_flight_is_re_tied_to_the_map(clock):
+    # an EKF reset (or an origin moved to where it armed) during the takeoff: every local coordinate jumps by
+    # (-20, 15) m; a setpoint kept in the old numbers would now mean a place 25 m away
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    frame = {"offset": np.array(OFFSET, float)}  # map = local + offset
+    shifts = []
+
+    def map_offset_now(origin, ground):
+        t = v.telemetry
+        return LocalNED(frame["offset"][0], frame["offset"][1], -(t.alt_amsl_m - ground) - t.down_m)
+
+    def jump():
+        v.telemetry.north_m -= 20.0
+        v.telemetry.east_m += 15.0
+        frame["offset"] += (20.0, -15.0, 0.0)
+
+    def shift_setpoint(dn, de, dd):
+        shifts.append((dn, de, dd))
+        n, e, d = v.setpoint
+        v.setpoint = (n + dn, e + de, d + dd)
+
+    v.map_offset_now, v.shift_setpoint = map_offset_now, shift_setpoint
+    clock.at(1.0, jump)  # climbing straight up from map (0, 0)
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and shifts == [pytest.approx((-20.0, 15.0, 0.0))]
+    true_end = (v.telemetry.north_m + frame["offset"][0], v.telemetry.east_m + frame["offset"][1])
+    assert true_end == pytest.approx((60.0, 40.0), abs=0.3)  # the map goal, not 25 m off it
+
+
 def test_a_pilot_taking_over_is_handed_over(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     clock.at(8.0, lambda: setattr(v, "mode", "posctl"))  # position mode: we never select it

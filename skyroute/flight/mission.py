@@ -182,6 +182,8 @@ class Mission(RecoveryMixin, LandingMixin):
         self.result = MissionResult(final_state=self.state)
         self.limits: Limits | None = None
         self._offset = LocalNED(0.0, 0.0, 0.0)
+        self._ground_amsl_m = 0.0
+        self.frame_jump_m, self._frame_jumps, self._frame_checked_s = 3.0, 0, -math.inf
         self._track: list[tuple[float, float, float, float]] = []
         self._takeoff_s = self._takeoff_autopilot_s = self._liftoff_autopilot_s = math.nan
         self._start_altitude_m = 0.0
@@ -236,9 +238,45 @@ class Mission(RecoveryMixin, LandingMixin):
             self._link_lost()
         self._sample()
         self._check_armed()
+        self._check_local_frame()
         if self.state in (S.TAKEOFF, S.WAYPOINT) and not self.vehicle.in_control:
             self._recover(f"the autopilot left our flight mode for {self.vehicle.telemetry.mode or '?'}",
                           link_lost=False)
+
+    def _check_local_frame(self) -> None:
+        """Notice the autopilot's local frame jumping under us (an EKF reset, an origin moved to where it armed):
+        the offset from the latest positions differs by ``frame_jump_m`` or more twice ``check_s`` apart. Then
+        the map is re-tied and the streamed setpoint moved with the frame, so it still means the same place."""
+        now = self.clock()
+        if now - self._frame_checked_s < 0.25 or not hasattr(self.vehicle, "map_offset_now"):
+            return
+        self._frame_checked_s = now
+        instant = self.vehicle.map_offset_now(self.map_origin, self._ground_amsl_m)
+        if instant is None:
+            return
+        delta = np.subtract(instant, self._offset)
+        if float(np.linalg.norm(delta)) < self.frame_jump_m:
+            self._frame_jumps = 0
+            return
+        self._frame_jumps += 1
+        if self._frame_jumps < 2:  # once may be a glitch of one sample
+            return
+        self._frame_jumps = 0
+        self._retie(instant)
+
+    def _retie(self, offset: LocalNED) -> None:
+        """Take ``offset`` as the map offset if it moved by ``frame_jump_m`` or more, and move the streamed
+        setpoint with the frame."""
+        delta = np.subtract(offset, self._offset)
+        if float(np.linalg.norm(delta)) < self.frame_jump_m:
+            return
+        log.warning("the autopilot's local frame moved by (%.1f, %.1f, %.1f) m: re-tied to the map", *delta)
+        self._say(f"the autopilot's local frame moved by {float(np.linalg.norm(delta)):.1f} m (an estimator reset "
+                  "or a new origin): re-tied to the map")
+        self._offset = LocalNED(*(float(v) for v in offset))
+        shift = getattr(self.vehicle, "shift_setpoint", None)
+        if shift is not None:
+            shift(*(-float(v) for v in delta))
 
     def _check_armed(self, context: str = "") -> None:
         """Raise :class:`VehicleDisarmedInFlight` if the vehicle disarmed between takeoff and touchdown (in
@@ -358,6 +396,7 @@ class Mission(RecoveryMixin, LandingMixin):
         else:
             ground, surface = float(self.ground_amsl_m), math.nan
         self._offset = self.vehicle.map_offset(self.map_origin, ground)
+        self._ground_amsl_m = ground
         self._say(preflight.describe_offset(self._offset, ground, surface if math.isfinite(surface) else 0.0))
         self.limits = self.vehicle.flight_limits()
         self.speeds = preflight.fit_speeds(self.speeds, self.limits)
@@ -416,6 +455,8 @@ class Mission(RecoveryMixin, LandingMixin):
                 self._say(f"arming refused ({exc}); retrying", every=True)
                 self.sleep(min(self.arm_retry_s, max(self._arm_deadline_s - self.clock(), 0.0)))
         self._fire(E.ARMED)
+        if hasattr(self.vehicle, "map_offset_now"):  # a frame that moved at arming (a new origin) before takeoff
+            self._retie(self.vehicle.map_offset(self.map_origin, self._ground_amsl_m))
 
     def _arm_failed(self) -> None:
         self._release()

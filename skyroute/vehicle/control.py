@@ -73,6 +73,13 @@ class MavlinkVehicle(MavlinkLink):
                  ground_amsl_m)
         return offset
 
+    def map_offset_now(self, map_origin: Geodetic, ground_amsl_m: float, fresh_s: float = 0.5) -> LocalNED | None:
+        """The map offset from the latest samples, without waiting; None unless both positions are fresh."""
+        t, now = self.telemetry, time.monotonic()
+        if not (t.has_global and t.has_local) or now - t.global_rx_s > fresh_s or now - t.local_rx_s > fresh_s:
+            return None
+        return map_offset(t, map_origin, ground_amsl_m)
+
     def failsafe_hint(self, window_s: float = 5.0, pause_s: float = 0.5) -> str | None:
         """Why the autopilot may have left our mode on its own in the last ``window_s``: our setpoints paused for
         ``pause_s`` or more (PX4 leaves OFFBOARD after COM_OF_LOSS_T), our link was silent, or it announced a

@@ -312,6 +312,14 @@ class MavlinkLink:
         self._streaming = True
         self._send_setpoint(self._setpoint)
 
+    def shift_setpoint(self, north_m: float, east_m: float, down_m: float) -> None:
+        """Move the streamed setpoint by (north, east, down) m: the autopilot's local frame moved under it (an
+        EKF reset, a new origin), and the same place now has other local coordinates."""
+        sp = self._setpoint
+        if sp is not None:
+            self._setpoint = dataclasses.replace(sp, north_m=sp.north_m + north_m, east_m=sp.east_m + east_m,
+                                                 down_m=sp.down_m + down_m)
+
     def stop_streaming(self) -> None:
         """Stop re-sending setpoints (the autopilot keeps its current mode)."""
         self._streaming = False

@@ -336,11 +336,13 @@ def test_arm_refused_twice_then_accepted_flies(start_sim, tmp_path, capsys, bloc
     assert_down_and_disarmed(report)
 
 
-def test_link_lost_in_flight_gives_up_after_link_timeout(start_sim, tmp_path, capsys, block_map):
-    # At 3x the ~130 m flight takes ~10 s of wall time; it takes off ~3 s after the sim starts. The link goes
-    # silent 6 s (wall) after the sim starts, for good: the vehicle notices after 2 s of silence, the mission waits
-    # --link-timeout 2 s more, then reports. The strict sim's own failsafe (offboard loss -> hold) owns the vehicle.
-    sim = start_sim(map_path=block_map, speedup=3.0, faults=FaultConfig(outage_start_s=6.0, outage_duration_s=600.0))
+def test_link_lost_in_flight_gives_up_after_link_timeout(start_sim, tmp_path, capsys, block_map, watchdog):
+    # At speed-up 1 (the sim's clock is the wall clock, whichever its link faults run on) the ~130 m flight takes
+    # off ~4 s after the sim starts and lasts ~25 s. The link goes silent 10 s after the sim starts, for good: the
+    # vehicle notices after 2 s of silence, the mission waits --link-timeout 2 s more, then reports. The strict
+    # sim's own failsafe (offboard loss -> hold) owns the vehicle.
+    watchdog(60.0)
+    sim = start_sim(map_path=block_map, speedup=1.0, faults=FaultConfig(outage_start_s=10.0, outage_duration_s=600.0))
     t0 = time.monotonic()
     code = fly(sim, tmp_path, "--map", str(block_map), "--link-timeout", "2", goal=GOAL_BEHIND_BLOCK)
     elapsed_s = time.monotonic() - t0
@@ -348,7 +350,7 @@ def test_link_lost_in_flight_gives_up_after_link_timeout(start_sim, tmp_path, ca
     err = one_line(capsys.readouterr().err)
     assert code == mp.EXIT_FAILED
     assert err.startswith("error: mission failed: the link was lost") and "for 2 s" in err and "failsafe" in err
-    assert elapsed_s < 6.0 + 2.0 + 2.0 + 3.0
+    assert elapsed_s < 10.0 + 2.0 + 2.0 + 5.0
     # truth: it was flying when the link went, the autopilot's failsafe holds it, nothing was hit
     assert report["airborne_time_s"] > 0 and not report["final"]["on_ground"]
     assert any(e["kind"] == "failsafe" for e in report["events"]) and report["final"]["mode"] != "OFFBOARD"
@@ -456,7 +458,8 @@ def test_a_connection_string_pymavlink_cannot_open_is_a_one_line_error(tmp_path,
 
 @pytest.mark.skipif("signing_key" not in {f.name for f in dataclasses.fields(SimConfig)},
                     reason="this sim does not sign (SimConfig has no signing_key)")
-def test_signing_on_both_ends(start_sim, tmp_path, capsys):
+def test_signing_on_both_ends(start_sim, tmp_path, capsys, watchdog):
+    watchdog(60.0)
     sim = start_sim(signing_key="skyroute e2e signing")
     assert fly(sim, tmp_path, "--signing-key", "skyroute e2e signing", goal=GOAL_SHORT) == mp.EXIT_OK, \
         capsys.readouterr().err

@@ -593,14 +593,16 @@ def test_the_maps_ground_altitude_can_be_given(clock):
 def test_speeds_are_fitted_to_the_autopilots_limits_and_a_hovering_failsafe_is_warned_about(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     v.limits.cruise_mps, v.limits.accel_mps2, v.limits.leaves_flying = 4.0, 2.5, True
+    v.limits.lateral_accel_mps2 = 1.5
     v.limits.link_loss = "a lost link leaves the vehicle hovering"
     lines = []
     mission = make_mission(v, clock, straight_plan([]), progress=lines.append, cruise_mps=10.0, accel_mps2=3.0)
     mission.run()
-    assert mission.speeds.cruise_mps == pytest.approx(3.6) and mission.speeds.accel_mps2 == pytest.approx(2.25)
+    assert mission.speeds.cruise_mps == pytest.approx(4.0) and mission.speeds.accel_mps2 == pytest.approx(2.25)
+    assert mission.speeds.lateral_accel_mps2 == pytest.approx(1.5)
     assert "warning: a lost link leaves the vehicle hovering" in lines
     speeds = [math.hypot(vn, ve) for vn, ve, _ in (x for x in v.velocities if x is not None)]
-    assert max(speeds) <= 3.6 + 1e-9
+    assert max(speeds) <= 4.0 + 1e-9
 
 
 def test_arm_refused_then_accepted(clock):
@@ -1291,7 +1293,8 @@ def test_mission_link_outage_against_sim(sim_start):
 
 @pytest.mark.flight
 def test_mission_link_lost_for_good_against_sim(sim_start):
-    sim = sim_start(strict=True, speedup=2.0, faults={"outage_start_s": 7.0, "outage_duration_s": 600.0})
+    # speed-up 1: the sim's clock is the wall clock, whichever its link faults run on; airborne from ~4 s
+    sim = sim_start(strict=True, speedup=1.0, faults={"outage_start_s": 8.0, "outage_duration_s": 600.0})
     with pytest.raises(m.LinkLostInFlight, match="failsafe") as err:
         fly(sim, link_lost_timeout_s=2.0)
     assert err.value.result.final_state is S.FAILED

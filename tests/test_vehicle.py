@@ -299,6 +299,7 @@ def test_ardupilot_defaults_hover_on_a_lost_link_and_accelerate_at_2_5():
     lim = vh.flight_limits(vh.Autopilot.ARDUPILOT, {"FS_GCS_ENABLE": 0.0, "GUID_TIMEOUT": 3.0, "WPNAV_SPEED": 1000.0,
                                                     "WPNAV_ACCEL": 250.0}, our_system=255)
     assert (lim.cruise_mps, lim.accel_mps2, lim.hold_last_s) == (10.0, 2.5, 3.0)
+    assert lim.lateral_accel_mps2 == pytest.approx(1.5)  # corners planned with 0.6 x: its target has a jerk limit
     assert lim.leaves_flying and "FS_GCS_ENABLE=0" in lim.link_loss and "hovering" in lim.link_loss
     # the measured coast: 5 m/s for GUID_TIMEOUT then braking at 2.5 m/s^2 ended 20.5 m past the last target
     assert lim.coast_m(5.0) == pytest.approx(5.0 * 3.0 + 25.0 / 5.0)

@@ -70,7 +70,7 @@ def feedforward_cap_mps(limits: Limits | None, clearance_fn: ClearanceFn | None,
 def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, ahead_s: float,
           accel_mps2: float, velocity_lag_s: float, heading_rad: float, limits: Limits | None = None,
           clearance_fn: ClearanceFn | None = None, previous_mps: float = 0.0, dt_s: float = 0.0,
-          max_lead_mps: float = 2.0) -> Setpoint:
+          max_lead_mps: float = 2.0, brake_lag_s: float = 0.0) -> Setpoint:
     """The setpoint for a vehicle at ``position`` (map n, e, alt) moving at ``velocity`` (map n, e, up) that has
     reached arc length ``s_m``; ``ref_s_m`` is the previous setpoint's (setpoints never go back along the path).
 
@@ -79,6 +79,10 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
     measured speed would crawl), and never more than ``max_lead_mps`` beyond the measured speed plus what
     ``accel_mps2`` adds over the prediction, so the autopilot keeps acceleration to spare for the cross-track
     error (e.g. leaving an arc) and a blocked vehicle is not given a runaway command.
+
+    The feed-forward's direction is the path's ``velocity_lag_s`` ahead (the autopilot's velocity loop takes
+    about that long to turn); its speed is the schedule's ``max(velocity_lag_s, brake_lag_s)`` ahead, so an
+    autopilot that is slow to slow down (PX4, ~0.6 s) is told to brake that much earlier without turning early.
     """
     speed = float(np.linalg.norm(velocity))
     predicted = np.asarray(position, float) + np.asarray(velocity, float) * ahead_s
@@ -87,14 +91,15 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
     if remaining_m <= FINAL_APPROACH_M or speed**2 / (2 * accel_mps2) > 2.0 * remaining_m + FINAL_APPROACH_M:
         ref_s = path.length_m  # the autopilot's position loop brakes to the goal from here (or it came in too fast)
     target, _ = path.point_at(ref_s)
-    # the velocity wanted velocity_lag_s later: the autopilot's velocity loop takes about that long to follow
     ff_s = min(ref_s + speed * velocity_lag_s, path.length_m)
+    brake_s = min(ref_s + speed * max(velocity_lag_s, brake_lag_s), path.length_m)
     tangent = path.point_at(ff_s)[1]
     if math.hypot(tangent[0], tangent[1]) > 0.1:
         heading_rad = math.atan2(tangent[1], tangent[0]) % (2 * math.pi)
     if ref_s >= path.length_m:
         return Setpoint(target, None, heading_rad, ref_s)
     ramp = max(previous_mps + accel_mps2 * dt_s, speed + accel_mps2 * max(ahead_s, 0.1))
-    wanted = min(path.speed_at(ff_s), ramp, speed + accel_mps2 * max(ahead_s, 0.1) + max_lead_mps)
+    wanted = min(path.speed_at(ff_s), path.speed_at(brake_s), ramp,
+                 speed + accel_mps2 * max(ahead_s, 0.1) + max_lead_mps)
     wanted = feedforward_cap_mps(limits, clearance_fn, target, tangent, wanted)
     return Setpoint(target, tangent * wanted, heading_rad, ref_s)

@@ -175,7 +175,7 @@ class Mission(RecoveryMixin, LandingMixin):
         self._trim_m = np.zeros(2)
         self.altitude_tolerance_m, self.corner_cut_m = altitude_tolerance_m, corner_cut_m
         self.speeds = preflight.Speeds(cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps)
-        self.lead_s, self.velocity_lag_s = lead_s, velocity_lag_s
+        self.lead_s, self.velocity_lag_s, self.brake_lag_s = lead_s, velocity_lag_s, 0.0
         self.poll_s, self.track_interval_s = poll_s, track_interval_s
         self.clock, self.sleep = clock, sleep
         self.state = MissionState.MANUAL
@@ -401,8 +401,8 @@ class Mission(RecoveryMixin, LandingMixin):
         self.limits = self.vehicle.flight_limits()
         self.speeds = preflight.fit_speeds(self.speeds, self.limits)
         response_s = float(getattr(self.limits, "response_s", math.nan))
-        if math.isfinite(response_s):  # take the velocity along the path as far ahead as the autopilot lags
-            self.velocity_lag_s = max(self.velocity_lag_s, response_s)
+        if math.isfinite(response_s):  # brake as early as the autopilot is slow to slow down
+            self.brake_lag_s = max(self.brake_lag_s, response_s)
         if self.limits.leaves_flying:
             self._say(f"warning: {self.limits.link_loss}")
         self._fire(E.READY)
@@ -552,7 +552,8 @@ class Mission(RecoveryMixin, LandingMixin):
             now = self.clock()
             sp = follower.steer(path, s_m=self._progress_s, ref_s_m=ref_s, position=(p.north_m, p.east_m,
                                 p.altitude_m), velocity=velocity, ahead_s=ahead_s, accel_mps2=s.accel_mps2,
-                                velocity_lag_s=self.velocity_lag_s, heading_rad=heading, limits=self.limits,
+                                velocity_lag_s=self.velocity_lag_s, brake_lag_s=self.brake_lag_s,
+                                heading_rad=heading, limits=self.limits,
                                 clearance_fn=self.clearance_fn, previous_mps=ff_mps, dt_s=rate * (now - ff_at))
             ref_s, heading = sp.ref_s, sp.heading_rad
             ff_mps, ff_at = (0.0 if sp.velocity is None else float(np.linalg.norm(sp.velocity))), now

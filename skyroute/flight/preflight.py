@@ -64,19 +64,26 @@ def ground_amsl(vehicle: Vehicle, map_origin: Geodetic, surface_fn: SurfaceFn | 
     return float(t.alt_amsl_m) - surface, surface
 
 
-def fit_speeds(wanted: Speeds, limits: Limits, margin: float = 0.9) -> Speeds:
-    """The schedule within ``margin`` of the autopilot's own limits (it would clip a faster feed-forward, and
-    overshoot corners planned with more acceleration than it allows).
+def fit_speeds(wanted: Speeds, limits: Limits, accel_margin: float = 0.9) -> Speeds:
+    """The schedule within the autopilot's own limits: cruise at most its speed limit (it clips a faster
+    feed-forward anyway), braking within ``accel_margin`` of its acceleration limit, and the arcs' lateral
+    acceleration within its ``lateral_accel_mps2`` (when it gives one; else ``accel_margin`` of the limit): the
+    position loop needs the rest to correct the cross-track error (ArduCopter SITL, which shapes its target with a
+    jerk limit, swung 5 m wide of 60-degree corners planned at 0.9 x WPNAV_ACCEL, 1.1 m at 0.6 x).
 
-    >>> class L: cruise_mps, accel_mps2 = 10.0, 2.5  # ArduCopter's WPNAV_SPEED, WPNAV_ACCEL
-    >>> fit_speeds(Speeds(10.0, 3.0, 3.0, 1.5), L())
-    Speeds(cruise_mps=9.0, accel_mps2=2.25, lateral_accel_mps2=2.25, vertical_mps=1.5)
+    >>> class L: cruise_mps, accel_mps2, lateral_accel_mps2 = 10.0, 2.5, 1.5  # ArduCopter's WPNAV_SPEED, _ACCEL
+    >>> fit_speeds(Speeds(12.0, 3.0, 3.0, 1.5), L())
+    Speeds(cruise_mps=10.0, accel_mps2=2.25, lateral_accel_mps2=1.5, vertical_mps=1.5)
     """
-    def fit(value: float, limit: float) -> float:
+    def fit(value: float, limit: float, margin: float) -> float:
         return min(value, margin * limit) if math.isfinite(limit) and limit > 0 else value
 
-    return Speeds(fit(wanted.cruise_mps, limits.cruise_mps), fit(wanted.accel_mps2, limits.accel_mps2),
-                  fit(wanted.lateral_accel_mps2, limits.accel_mps2), wanted.vertical_mps)
+    lateral = float(getattr(limits, "lateral_accel_mps2", math.inf))
+    if not math.isfinite(lateral):
+        lateral = accel_margin * limits.accel_mps2
+    return Speeds(fit(wanted.cruise_mps, limits.cruise_mps, 1.0),
+                  fit(wanted.accel_mps2, limits.accel_mps2, accel_margin),
+                  fit(wanted.lateral_accel_mps2, lateral, 1.0), wanted.vertical_mps)
 
 
 def describe_offset(offset: LocalNED, ground_amsl_m: float, surface_m: float) -> str:

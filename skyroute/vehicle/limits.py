@@ -50,15 +50,19 @@ class FlightLimits:
     """Limits (SI) the mission must respect, and what the autopilot does once our commands stop.
 
     ``cruise_mps`` and ``accel_mps2``: the most the autopilot will fly or accelerate horizontally (``inf`` when
-    unknown). After our last setpoint the autopilot keeps acting on it for ``hold_last_s`` (moving a velocity
-    target on, or overshooting a position target by the feed-forward), then brakes at ``brake_mps2``: see
+    unknown); ``lateral_accel_mps2`` the most to plan its corners with, leaving the rest of ``accel_mps2`` to its
+    position loop (ArduCopter GUIDED shapes its target with a jerk limit: 0.6 x WPNAV_ACCEL; PX4 0.9 x). After our
+    last setpoint the autopilot keeps acting on it for ``hold_last_s`` (moving a velocity target on, or
+    overshooting a position target by the feed-forward), then brakes at ``brake_mps2``: see
     :meth:`coast_m`. ``link_loss`` says in words what happens when our link is lost; ``leaves_flying`` is True
     when that leaves the vehicle in the air (hovering) until its battery runs out. ``response_s``: how long its
-    velocity lags a new feed-forward (measured on SITL: PX4 ~0.6 s braking from 9 m/s; NaN when unknown).
+    velocity lags a new feed-forward (measured on SITL: PX4 ~0.6 s braking from 9 m/s; ArduCopter ~1 s, its GUIDED
+    shapes the target with WPNAV_ACCEL and a jerk limit; NaN when unknown).
     """
 
     cruise_mps: float = math.inf
     accel_mps2: float = math.inf
+    lateral_accel_mps2: float = math.inf
     hold_last_s: float = 1.0
     brake_mps2: float = 2.5
     link_loss: str = "unknown: the autopilot's failsafe parameters were not read"
@@ -117,9 +121,10 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
                          f"{_FS_GCS_ACTIONS.get(action, f'action {action}')} (FS_GCS_ENABLE={action})")
             flying = False
         return FlightLimits(
-            cruise_mps=get("WPNAV_SPEED") / 100.0, accel_mps2=accel, hold_last_s=get("GUID_TIMEOUT"),
+            cruise_mps=get("WPNAV_SPEED") / 100.0, accel_mps2=accel, lateral_accel_mps2=0.6 * accel,
+            hold_last_s=get("GUID_TIMEOUT"),
             brake_mps2=accel, link_loss=link_loss + assumed("FS_GCS_ENABLE", "GUID_TIMEOUT"), leaves_flying=flying,
-            response_s=0.3, params=dict(params))
+            response_s=1.0, params=dict(params))
     offboard = int(get("COM_OBL_RC_ACT"))
     datalink = int(get("NAV_DLL_ACT"))
     link_loss = (f"after {get('COM_OF_LOSS_T'):g} s without setpoints PX4 switches to "
@@ -131,7 +136,7 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
         link_loss += ": a lost link leaves the vehicle hovering"
     accel = get("MPC_ACC_HOR")
     return FlightLimits(
-        cruise_mps=get("MPC_XY_VEL_MAX"), accel_mps2=accel,
+        cruise_mps=get("MPC_XY_VEL_MAX"), accel_mps2=accel, lateral_accel_mps2=0.9 * accel,
         hold_last_s=max(get("COM_OF_LOSS_T"), 1.0 / max(get("MPC_XY_P"), 0.1)), brake_mps2=accel,
         link_loss=link_loss + assumed("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_DLL_ACT"), leaves_flying=flying,
         response_s=0.6 if autopilot is Autopilot.PX4 else math.nan, params=dict(params))

@@ -411,10 +411,10 @@ def test_a_second_and_third_mission_fly_on_the_same_running_sim(start_sim, tmp_p
 
 def test_a_3_s_outage_mid_flight_is_ridden_out_and_the_mission_completes(start_sim, tmp_path, capsys, block_map,
                                                                          watchdog):
-    # at speed-up 1 the sim's clock is the wall clock, whichever its link faults run on; the ~130 m flight takes
-    # off ~4 s after the sim starts and lands ~25 s later: the link is dead from 12 s to 15 s
+    # at speed-up 2 the ~130 m flight takes off ~4 s (wall) after the sim starts and lands ~13 s later; the link is
+    # dead from 12 s for 3 s, wall-clock or simulated (the sim's faults use one or the other), mid-flight either way
     watchdog(90.0)
-    sim = start_sim(map_path=block_map, speedup=1.0, faults=FaultConfig(outage_start_s=12.0, outage_duration_s=3.0))
+    sim = start_sim(map_path=block_map, speedup=2.0, faults=FaultConfig(outage_start_s=12.0, outage_duration_s=3.0))
     code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)
     report = sim.stop()
     out, err = capsys.readouterr()
@@ -429,10 +429,11 @@ def test_a_3_s_outage_mid_flight_is_ridden_out_and_the_mission_completes(start_s
 
 def test_200_ms_of_latency_flies_at_cruise_speed(start_sim, tmp_path, capsys, watchdog):
     # the follower leads by the measured round trip: 200 ms each way costs <= 1.3 x the no-latency airborne time
+    # (at speed-up 2 a sim whose faults run on the wall clock delays by 400 ms of its own time: harder still)
     watchdog(120.0)
     airborne = {}
     for latency_ms in (0.0, 200.0):
-        sim = start_sim(speedup=1.0, faults=FaultConfig(latency_ms=latency_ms))
+        sim = start_sim(speedup=2.0, faults=FaultConfig(latency_ms=latency_ms))
         assert fly(sim, tmp_path, "-q", goal=GOAL_SHORT) == mp.EXIT_OK, capsys.readouterr().err
         report = sim.stop()
         airborne[latency_ms] = report["airborne_time_s"]

@@ -1,9 +1,8 @@
-"""Map files, configuration space, pruning and waypoints."""
+"""Configuration space, pruning and waypoints (the map reader has tests/test_maps.py)."""
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +11,6 @@ from planning_utils import (
     BlockedCellError,
     GridMap,
     GridPlanner,
-    MapFormatError,
     NoPathError,
     create_grid,
     headings_along,
@@ -20,74 +18,10 @@ from planning_utils import (
     path_length,
     prune_collinear,
     prune_path,
-    read_colliders,
-    read_home,
     supercover,
     waypoints_from_cells,
 )
 from tests.test_grid_search import random_grid
-
-SF_MAP = Path(__file__).resolve().parents[2] / "shared" / "maps" / "udacity_sf_colliders.csv"
-HEADER = "lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
-
-
-def write_map(tmp_path: Path, text: str) -> Path:
-    path = tmp_path / "map.csv"
-    path.write_text(text)
-    return path
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Map files
-
-
-def test_reads_home_and_rows(tmp_path):
-    city = read_colliders(write_map(tmp_path, HEADER + "1,2,3,4,5,6\n\n-1.5,2,3,0.5,0.5,3\n"))
-    assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)
-    assert city.obstacles.tolist() == [[1, 2, 3, 4, 5, 6], [-1.5, 2, 3, 0.5, 0.5, 3]]
-
-
-def test_read_home_returns_lat_then_lon(tmp_path):
-    assert read_home(write_map(tmp_path, HEADER + "1,2,3,4,5,6\n")) == (37.79248, -122.39745)
-
-
-@pytest.mark.skipif(not SF_MAP.exists(), reason="shared SF map not present")
-def test_reads_the_shared_sf_map_unchanged():
-    city = read_colliders(SF_MAP)
-    assert city.obstacles.shape == (3845, 6)
-    assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)
-
-
-@pytest.mark.parametrize(
-    "text, line, message",
-    [
-        ("", 1, "empty file"),
-        ("37.7, -122.3\n" + HEADER, 1, "expected 'lat0"),
-        ("lat0 95.0, lon0 1.0\n" + HEADER.splitlines()[1] + "\n1,2,3,4,5,6\n", 1, "outside"),
-        ("lat0 37.7, lon0 -122.3\n", 2, "expected header"),
-        ("lat0 37.7, lon0 -122.3\nx,y,z\n1,2,3,4,5,6\n", 2, "expected header"),
-        (HEADER, 3, "no obstacle rows"),
-        (HEADER + "1,2,3,4,5,6\n1,2,3,4,5\n", 4, "expected 6 columns, got 5"),
-        (HEADER + "1,2,3,4,5,6\n1,2,x,4,5,6\n", 4, "not a number: 'x'"),
-        (HEADER + "1,2,3,4,5,6\n\n1,2,nan,4,5,6\n", 5, "NaN or infinite"),
-        (HEADER + "1,2,inf,4,5,6\n", 3, "NaN or infinite"),
-        (HEADER + "1,2,3,4,5,6\n1,2,3,-4,5,6\n", 4, "negative half size"),
-    ],
-)
-def test_bad_map_files_name_the_file_and_line(tmp_path, text, line, message):
-    path = write_map(tmp_path, text)
-    with pytest.raises(MapFormatError, match=message) as info:
-        read_colliders(path)
-    assert info.value.line == line
-    assert str(info.value).startswith(f"{path}:{line}: ")
-
-
-def test_binary_file_is_a_map_format_error(tmp_path):
-    path = tmp_path / "map.csv"
-    path.write_bytes(b"\xff\xfe\x00garbage")
-    with pytest.raises(MapFormatError, match="not a text file"):
-        read_colliders(path)
-
 
 # ---------------------------------------------------------------------------------------------------------------
 # Configuration space

@@ -18,6 +18,7 @@ from planning_utils import (
     heuristic,
     nearest_free_cell,
 )
+from skyroute.planning.search import python_a_star
 
 SQRT2 = math.sqrt(2)
 METHODS = ["jps", "astar"]
@@ -194,6 +195,89 @@ def test_nearest_free_cell_matches_brute_force():
 
 def test_nearest_free_cell_of_full_grid_is_none():
     assert nearest_free_cell(np.ones((5, 5), dtype=bool), (2, 2)) is None
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_a_custom_heuristic_runs_the_python_a_star_and_stays_optimal(seed):
+    rng = np.random.default_rng(500 + seed)
+    grid = random_grid(rng, shape=(25, 30), density=0.15 + 0.3 * rng.random(), blob=bool(seed % 2))
+    free = np.argwhere(~grid)
+    calls = []
+
+    def euclidean(position, goal_position):  # the classic heuristic, but not the object a_star knows
+        calls.append(position)
+        return math.hypot(position[0] - goal_position[0], position[1] - goal_position[1])
+
+    for _ in range(3):
+        start, goal = tuple(free[rng.integers(len(free))]), tuple(free[rng.integers(len(free))])
+        expected = dijkstra_cost(grid, start, goal)
+        if math.isinf(expected):
+            with pytest.raises(NoPathError):
+                a_star(grid, euclidean, start, goal)
+            continue
+        path, cost = a_star(grid, euclidean, start, goal)
+        assert cost == pytest.approx(expected, abs=1e-9)
+        assert_valid_path(grid, np.array(path), start, goal, cost)
+    assert calls  # the heuristic was really asked
+
+
+# A wall up column 6 with a gap in the top row, and a block in column 3 in front of the start. The cheapest way
+# from S (4, 0) to G (4, 12) passes the block and climbs along the wall to the gap; a search pulled hard towards
+# the goal (5 x the straight-line distance) runs into the block and the wall first and settles for a longer way.
+#   north 8  . . . . . . . . . . . . .
+#   north 7  . . . . . . # . . . . . .
+#   north 6  . . . . . . # . . . . . .
+#   north 5  . . . # . . # . . . . . .
+#   north 4  S . . # . . # . . . . . G
+#   north 3  . . . # . . # . . . . . .
+#   north 2  . . . . . . # . . . . . .
+#   north 1  . . . . . . # . . . . . .
+#   north 0  . . . . . . # . . . . . .
+TRAP = np.zeros((9, 13), dtype=bool)
+TRAP[0:8, 6] = True
+TRAP[3:6, 3] = True
+
+
+def test_a_custom_heuristic_changes_the_search():
+    def euclidean(a, b):
+        return math.hypot(a[0] - b[0], a[1] - b[1])
+
+    optimal = dijkstra_cost(TRAP, (4, 0), (4, 12))
+    dijkstra = python_a_star(TRAP, lambda a, b: 0.0, (4, 0), (4, 12))
+    guided = python_a_star(TRAP, euclidean, (4, 0), (4, 12))
+    greedy_path, greedy_cost = a_star(TRAP, lambda a, b: 5 * euclidean(a, b), (4, 0), (4, 12))
+    assert dijkstra.cost == pytest.approx(optimal) and guided.cost == pytest.approx(optimal)
+    assert guided.expanded < dijkstra.expanded  # a better-informed heuristic expands fewer cells
+    assert greedy_cost > optimal + 0.5  # an inadmissible one is followed, to a longer path
+    assert_valid_path(TRAP, np.array(greedy_path), (4, 0), (4, 12), greedy_cost)
+    assert a_star(TRAP, heuristic, (4, 0), (4, 12))[1] == pytest.approx(optimal)  # the compiled path
+
+
+def test_a_querys_memory_does_not_grow_with_the_grid():
+    # The same 60 x 60 neighbourhood alone and walled into a 3000 x 3000 grid (9 M cells): the search touches the
+    # same cells, so its state table is the same size, and neither query allocates anything grid-sized.
+    import tracemalloc
+
+    rng = np.random.default_rng(11)
+    small = random_grid(rng, shape=(60, 60), density=0.3)
+    small[0, 0] = small[59, 59] = False
+    big = np.ones((3000, 3000), dtype=bool)
+    big[1500:1560, 1500:1560] = small
+    results = []
+    for grid, offset in ((small, 0), (big, 1500)):
+        tracemalloc.start()
+        planner = GridPlanner(grid)
+        built = tracemalloc.get_traced_memory()[1]
+        tracemalloc.reset_peak()
+        path = planner.plan((offset, offset), (offset + 59, offset + 59))
+        query = tracemalloc.get_traced_memory()[1] - tracemalloc.get_traced_memory()[0]
+        tracemalloc.stop()
+        results.append((path, built, query))
+    (small_path, _, small_query), (big_path, big_built, big_query) = results
+    assert big_path.cost == small_path.cost and big_path.expanded == small_path.expanded
+    assert big_path.state_entries == small_path.state_entries < 4096
+    assert big_query < 100_000 and small_query < 100_000
+    assert big_built < 1.1 * big.size  # the padded copy of the grid, one byte per cell, and nothing per query
 
 
 def test_classic_a_star_signature_returns_tuples_and_cost():

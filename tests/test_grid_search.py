@@ -269,15 +269,17 @@ def test_a_querys_memory_does_not_grow_with_the_grid():
         planner = GridPlanner(grid)
         built = tracemalloc.get_traced_memory()[1]
         tracemalloc.reset_peak()
+        before = tracemalloc.get_traced_memory()[0]
         path = planner.plan((offset, offset), (offset + 59, offset + 59))
-        query = tracemalloc.get_traced_memory()[1] - tracemalloc.get_traced_memory()[0]
+        query = tracemalloc.get_traced_memory()[1] - before  # numba's allocations are traced too
         tracemalloc.stop()
         results.append((path, built, query))
     (small_path, _, small_query), (big_path, big_built, big_query) = results
     assert big_path.cost == small_path.cost and big_path.expanded == small_path.expanded
     assert big_path.state_entries == small_path.state_entries < 4096
     assert big_query < 100_000 and small_query < 100_000
-    assert big_built < 1.1 * big.size  # the padded copy of the grid, one byte per cell, and nothing per query
+    # The planner's own tables: the padded grid (a byte per cell) and the jump scans' bit tables (another byte).
+    assert big_built < 2.1 * big.size
 
 
 def test_classic_a_star_signature_returns_tuples_and_cost():

@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -322,6 +322,7 @@ class Grid3DPlanner:
     safety_m: float
     climb_weight: float = 1.5
     descent_weight: float = 1.0
+    _levels: dict = field(default_factory=dict, repr=False, compare=False)  # altitude -> the level's search grid
 
     @classmethod
     def build(cls, obstacles: np.ndarray, altitude_m: float, safety_m: float, **weights) -> Grid3DPlanner:
@@ -402,11 +403,7 @@ class Grid3DPlanner:
     def _best_level(self, levels, start_level, goal_level, start_cell, goal_cell):
         """``((cost, level, flat 2D path), expanded, levels searched)`` for the cheapest cruise level, or
         ``(None, expanded, searched)`` if no level connects the two cells."""
-        n, m = self.floor.shape
-        padded = np.full((n + 2, m + 2), np.inf)
-        padded[1:-1, 1:-1] = self.floor
-        padded = padded.ravel()
-        width = m + 2
+        width = self.floor.shape[1] + 2
         start = (start_cell[0] + 1) * width + start_cell[1] + 1
         goal = (goal_cell[0] + 1) * width + goal_cell[1] + 1
         straight = kernels.octile(start_cell[0], start_cell[1], goal_cell[0], goal_cell[1])
@@ -418,12 +415,23 @@ class Grid3DPlanner:
             bound = math.inf if best is None else best[0] - vertical
             if straight >= bound:
                 break  # even a straight flight at this level (or higher) costs more than the best so far
-            flat, cost, count, _ = kernels.jps(padded > z, width, start, goal, bound)
+            flat, cost, count, _ = kernels.jps(*self._level_grid(float(z)), width, start, goal, bound)
             expanded += count
             tried += 1
             if cost >= 0:
                 best = (cost + vertical, level, np.column_stack((flat // width - 1, flat % width - 1)))
         return best, expanded, tried
+
+    def _level_grid(self, z: float) -> tuple:
+        """The padded grid of cells blocked at altitude ``z`` and its scan tables, as ``kernels.jps`` takes them;
+        built once per altitude (a query at the planner's own altitude reuses the same levels)."""
+        if z not in self._levels:
+            n, m = self.floor.shape
+            blocked = np.ones((n + 2, m + 2), dtype=np.bool_)
+            blocked[1:-1, 1:-1] = self.floor > z
+            self._levels[z] = (blocked.ravel(), kernels.scan_tables(kernels.pack_rows(blocked)),
+                               kernels.scan_tables(kernels.pack_columns(blocked)))
+        return self._levels[z]
 
     @staticmethod
     def _route(cells: np.ndarray, z_start: float, z_cruise: float, z_goal: float) -> np.ndarray:

@@ -39,10 +39,11 @@ class GridPlanner:
     times faster on city maps. ``method="astar"`` is the textbook A* (see ``kernels/gridsearch.py`` for both).
     ``expanded`` counts expanded search nodes: every cell for A*, only jump points for JPS.
 
-    Building the planner pads the grid once (one byte per cell); a query keeps its state in a hash table sized by
-    the cells it stores, so a 10 m query costs microseconds and kilobytes even on a 10 km map. The first call in
-    a fresh environment compiles the kernels (a few seconds); numba caches the machine code on disk, so later
-    processes skip that.
+    Building the planner pads the grid once (one byte per cell) and, for JPS, packs it into bit tables for its
+    straight scans (another byte per cell); a query keeps its state in a hash table sized by the cells it
+    stores, so a 10 m query costs microseconds and kilobytes even on a 10 km map. The first call in a fresh
+    environment compiles the kernels (a few seconds); numba caches the machine code on disk, so later processes
+    skip that.
 
     Examples
     --------
@@ -71,7 +72,10 @@ class GridPlanner:
         padded = np.ones((n + 2, m + 2), dtype=np.bool_)
         padded[1:-1, 1:-1] = grid
         self._blocked = padded.ravel()
-        _load(self.METHODS[method])
+        if method == "jps":  # the grid as bits, rows and columns, with what its straight scans need (kernels.bits)
+            self._bits = (kernels.scan_tables(kernels.pack_rows(padded)),
+                          kernels.scan_tables(kernels.pack_columns(padded)))
+        _load(method)
 
     def _flat(self, cell: tuple[int, int]) -> int:
         return (cell[0] + 1) * self._width + cell[1] + 1
@@ -105,21 +109,27 @@ class GridPlanner:
         """
         start = self.check_cell("start", start)
         goal = self.check_cell("goal", goal)
-        search = self.METHODS[self.method]
-        flat, cost, expanded, entries = search(self._blocked, self._width, self._flat(start), self._flat(goal),
-                                               float(max_cost))
+        s, t = self._flat(start), self._flat(goal)
+        if self.method == "jps":
+            flat, cost, expanded, entries = kernels.jps(self._blocked, *self._bits, self._width, s, t, float(max_cost))
+        else:
+            flat, cost, expanded, entries = kernels.astar(self._blocked, self._width, s, t, float(max_cost))
         if cost < 0:
             raise NoPathError(start, goal, expanded)
         cells = np.column_stack((flat // self._width - 1, flat % self._width - 1))
         return GridPath(cells, float(cost), int(expanded), int(entries))
 
 
-def _load(search) -> None:
-    """Load (or compile) ``search`` with the argument types :meth:`GridPlanner.plan` uses, so that the first real
-    query times only its search."""
-    blocked = np.ones(9, np.bool_)
-    blocked[4] = False
-    search(blocked, 3, 4, 4, math.inf)
+def _load(method: str) -> None:
+    """Load (or compile) the kernels of ``method`` with the argument types :meth:`GridPlanner.plan` uses, so that
+    the first real query times only its search."""
+    padded = np.ones((3, 3), np.bool_)
+    padded[1, 1] = False
+    if method == "jps":
+        tables = (kernels.scan_tables(kernels.pack_rows(padded)), kernels.scan_tables(kernels.pack_columns(padded)))
+        kernels.jps(padded.ravel(), *tables, 3, 4, 4, math.inf)
+    else:
+        kernels.astar(padded.ravel(), 3, 4, 4, math.inf)
 
 
 def heuristic(position: Sequence[float], goal_position: Sequence[float]) -> float:

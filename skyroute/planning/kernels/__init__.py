@@ -5,6 +5,7 @@ module          what it holds
 ==============  ==================================================================================================
 ``heap``        binary min-heap of ``(f, g, node)`` shared by every search
 ``table``       per-query search state in a hash table (memory grows with the cells touched, not the grid)
+``bits``        the grid as bits (rows and transposed columns) for 64-cells-a-word straight scans
 ``gridsearch``  textbook A* and jump point search on the padded, flattened occupancy grid
 ``lines``       the supercover walk of a segment (line of sight) and line-of-sight pruning
 ``raster``      obstacle footprints grown by a Euclidean margin, rasterised row by row
@@ -55,6 +56,7 @@ _import_numba_without_scipy()
 from numba import njit  # noqa: E402
 from numba.core import event  # noqa: E402
 
+from skyroute.planning.kernels.bits import pack_columns, pack_rows, scan_tables  # noqa: E402
 from skyroute.planning.kernels.gridsearch import SQRT2, astar, jps, octile  # noqa: E402
 from skyroute.planning.kernels.heap import heap_pop, heap_push, new_heap  # noqa: E402
 from skyroute.planning.kernels.lines import prune_los_mask, walk_supercover  # noqa: E402
@@ -62,7 +64,8 @@ from skyroute.planning.kernels.raster import rasterise, rasterise_max  # noqa: E
 
 __all__ = [
     "SQRT2", "astar", "compile_count", "heap_pop", "heap_push", "jps", "new_heap", "njit", "octile",
-    "on_first_compile", "prune_los_mask", "rasterise", "rasterise_max", "walk_supercover",
+    "on_first_compile", "pack_columns", "pack_rows", "prune_los_mask", "rasterise", "rasterise_max", "scan_tables",
+    "walk_supercover",
 ]
 
 

@@ -29,6 +29,7 @@ import math
 import numpy as np
 from numba import njit
 
+from skyroute.planning.kernels.bits import scan_down, scan_up
 from skyroute.planning.kernels.heap import heap_pop, heap_push, new_heap
 from skyroute.planning.kernels.table import EMPTY, claim, find, new_table
 
@@ -119,38 +120,48 @@ def astar(blocked, width, start, goal, max_cost):
 # Jump point search
 
 
-@njit(cache=True)
-def _jump_straight(blocked, v, step, side, goal):
-    """Scan from ``v`` along ``step`` (+-1 or +-width); return the first jump point, or -1 at a wall.
+@njit(cache=True, inline="always")
+def _scan(rows, columns, r, c, a, b, gr, gc):
+    """Jump from padded cell ``(r, c)`` one way along a row or column (``(a, b)`` a unit step, one of them 0):
+    the first jump point's row and column, or ``(-1, -1)`` at a wall.
 
     A cell is a jump point when it is the goal or has a *forced* neighbour: a free side cell whose cell behind
-    is blocked, so the side cell cannot be reached as cheaply by a diagonal that skips the current cell.
+    is blocked, so the side cell cannot be reached as cheaply by a diagonal that skips the current cell. The scan
+    runs over the bit grids (``bits``), 64 cells a word: east-west in ``rows``, north-south in ``columns``.
     """
-    while True:
-        v += step
-        if blocked[v]:
-            return -1
-        if v == goal:
-            return v
-        if (not blocked[v + side] and blocked[v - step + side]) or (
-            not blocked[v - side] and blocked[v - step - side]
-        ):
-            return v
+    if a == 0:
+        target = gc if gr == r else -1
+        x = scan_up(rows, r, c, target) if b > 0 else scan_down(rows, r, c, target)
+        return (r, x) if x >= 0 else (-1, -1)
+    target = gr if gc == c else -1
+    x = scan_up(columns, c, r, target) if a > 0 else scan_down(columns, c, r, target)
+    return (x, c) if x >= 0 else (-1, -1)
 
 
 @njit(cache=True)
-def _jump_diagonal(blocked, v, step_n, step_e, goal):
-    """Scan diagonally from ``v``; a cell is a jump point when it is the goal or a straight scan from it finds one."""
+def _jump(blocked, rows, columns, width, v, a, b, goal):
+    """From flat cell ``v``, the first jump point in direction ``(a, b)`` (north, east unit steps), or -1.
+
+    Diagonally, a cell is a jump point when it is the goal or a straight scan from it (along either component)
+    finds one; the diagonal never passes a blocked corner.
+    """
+    r, c = v // width, v % width
+    gr, gc = goal // width, goal % width
+    if a == 0 or b == 0:
+        jr, jc = _scan(rows, columns, r, c, a, b, gr, gc)
+        return -1 if jr < 0 else jr * width + jc
+    step_n = a * width
     while True:
-        if blocked[v + step_n] or blocked[v + step_e]:
+        if blocked[v + step_n] or blocked[v + b]:
             return -1  # would cut a corner
-        v += step_n + step_e
+        v += step_n + b
+        r += a
+        c += b
         if blocked[v]:
             return -1
         if v == goal:
             return v
-        if (_jump_straight(blocked, v, step_n, step_e, goal) >= 0
-                or _jump_straight(blocked, v, step_e, step_n, goal) >= 0):
+        if _scan(rows, columns, r, c, a, 0, gr, gc)[0] >= 0 or _scan(rows, columns, r, c, 0, b, gr, gc)[0] >= 0:
             return v
 
 
@@ -188,11 +199,12 @@ def _directions(v, p, width, dirs_n, dirs_e):
 
 
 @njit(cache=True)
-def jps(blocked, width, start, goal, max_cost):
+def jps(blocked, rows, columns, width, start, goal, max_cost):
     """Jump point search from flat cell ``start`` to ``goal``: ``(path, cost, expanded jump points, slots)``.
 
-    Parent links join consecutive jump points, which always lie on one straight or diagonal line; the returned
-    path fills in the cells between them.
+    ``rows`` and ``columns`` are the scan tables of the padded grid as bits (``bits.scan_tables`` of
+    ``bits.pack_rows(padded)`` and of ``bits.pack_columns(padded)``). Parent links join consecutive jump points,
+    which always lie on one straight or diagonal line; the returned path fills in the cells between them.
     """
     gi, gj = goal // width, goal % width
     keys, g, parent, closed = new_table(_FIRST_SLOTS)
@@ -216,13 +228,7 @@ def jps(blocked, width, start, goal, max_cost):
             return _trace(keys, parent, goal, width), gv, expanded, keys.shape[0]
         vi, vj = v // width, v % width
         for k in range(_directions(v, parent[s], width, dirs_n, dirs_e)):
-            step_n, step_e = dirs_n[k] * width, dirs_e[k]
-            if step_n != 0 and step_e != 0:
-                w = _jump_diagonal(blocked, v, step_n, step_e, goal)
-            elif step_n != 0:
-                w = _jump_straight(blocked, v, step_n, 1, goal)
-            else:
-                w = _jump_straight(blocked, v, step_e, width, goal)
+            w = _jump(blocked, rows, columns, width, v, dirs_n[k], dirs_e[k], goal)
             if w < 0:
                 continue
             gw = gv + octile(vi, vj, w // width, w % width)

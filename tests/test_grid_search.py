@@ -296,3 +296,57 @@ def test_classic_heuristic_is_euclidean():
 def test_grid_planner_rejects_non_bool_grids():
     with pytest.raises(ValueError, match="bool"):
         GridPlanner(np.zeros((3, 3), dtype=np.uint8))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The bit tables under jump point search, against plain NumPy and a cell-by-cell scan
+
+
+def padded_bits_reference(grid: np.ndarray) -> np.ndarray:
+    """The padded grid packed by NumPy: bit k of word w of row r = padded cell (r, 64 w + k), past the end 1."""
+    padded = np.pad(grid, 1, constant_values=True)
+    words = (padded.shape[1] + 63) // 64
+    wide = np.ones((padded.shape[0], 64 * words), dtype=bool)
+    wide[:, : padded.shape[1]] = padded
+    return np.packbits(wide, axis=1, bitorder="little").view("<u8")
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (5, 62), (7, 63), (3, 64), (66, 65), (130, 129)])
+def test_bit_packing_matches_numpy(shape):
+    from skyroute.planning import kernels
+
+    grid = np.random.default_rng(sum(shape)).random(shape) < 0.4
+    np.testing.assert_array_equal(kernels.pack_rows(grid), padded_bits_reference(grid))
+    np.testing.assert_array_equal(kernels.pack_columns(grid), padded_bits_reference(grid.T))
+
+
+def scan_reference(padded: np.ndarray, r: int, c: int, step: int, target: int) -> int:
+    """Cell by cell along row r from column c: -1 at a blocked cell, else the first cell that is the target or
+    has a free side cell whose cell one step back is blocked."""
+    x = c
+    while True:
+        x += step
+        if padded[r, x]:
+            return -1
+        if x == target:
+            return x
+        for side in (r - 1, r + 1):
+            if not padded[side, x] and padded[side, x - step]:
+                return x
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_word_scans_stop_where_a_cell_by_cell_scan_does(seed):
+    from skyroute.planning.kernels import bits
+
+    rng = np.random.default_rng(seed)
+    grid = rng.random((12, 200)) < [0.02, 0.1, 0.3][seed % 3]
+    padded = np.pad(grid, 1, constant_values=True)
+    tables = bits.scan_tables(bits.pack_rows(grid))
+    free = np.argwhere(~padded)
+    for r, c in free[rng.integers(len(free), size=200)]:
+        target = int(rng.integers(0, 202)) if rng.random() < 0.3 else -1
+        up = bits.scan_up(tables, int(r), int(c), target if target > c else -1)
+        down = bits.scan_down(tables, int(r), int(c), target if 0 <= target < c else -1)
+        assert up == scan_reference(padded, r, c, 1, target if target > c else -1)
+        assert down == scan_reference(padded, r, c, -1, target if 0 <= target < c else -1)

@@ -202,10 +202,18 @@ def print_plan(plan: Plan, out=sys.stdout) -> None:
 
 
 def save_plot(path, setting: Setting, plan: Plan, track_ne=None) -> None:
+    """The plan's picture: over the configuration space at the flight altitude, or, for a route that changes
+    altitude, over the height map with its altitude profile."""
     from skyroute.view import plotting  # matplotlib only when a picture is asked for
 
+    floor = None
+    if np.ptp(plan.waypoints[:, 2]) > 0:
+        from skyroute.planning.grid3d import floor_map
+
+        floor = floor_map(setting.city.obstacles, setting.safety_m)
     plotting.save_plan_figure(
         path, setting.city.obstacles, plan, altitude_m=setting.altitude_m, safety_m=setting.safety_m,
         track_ne=track_ne,
         grid=(setting.grid_map.grid, setting.grid_map.north_offset, setting.grid_map.east_offset),
+        floor=floor,
     )

@@ -44,6 +44,7 @@ from skyroute.planning.pruning import (
     line_of_sight,
     path_length,
     prune_line_of_sight,
+    prune_path,
     waypoints_from_cells,
 )
 
@@ -264,7 +265,7 @@ def plan_from_cells(
     """A 2D ``Plan`` from a route of cells whose consecutive pairs are mutually visible: prune, waypoints."""
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
     cells = cells[np.concatenate(([True], (np.diff(cells, axis=0) != 0).any(axis=1)))]  # a node on the start
-    pruned = prune_line_of_sight(gmap.grid, cells)
+    pruned = prune_path(gmap.grid, cells)
     waypoints = waypoints_from_cells(pruned, gmap.north_offset, gmap.east_offset, gmap.altitude_m)
     raw = cells + (gmap.north_offset + 0.5, gmap.east_offset + 0.5)
     if lead_in is not None:

@@ -423,13 +423,11 @@ class Grid3DPlanner:
         return best, expanded, tried
 
     def _level_grid(self, z: float) -> tuple:
-        """The padded grid of cells blocked at altitude ``z`` and its scan tables, as ``kernels.jps`` takes them;
-        built once per altitude (a query at the planner's own altitude reuses the same levels)."""
+        """The scan tables of the cells blocked at altitude ``z``, as ``kernels.jps`` takes them; built once per
+        altitude (a query at the planner's own altitude reuses the same levels)."""
         if z not in self._levels:
-            n, m = self.floor.shape
-            blocked = np.ones((n + 2, m + 2), dtype=np.bool_)
-            blocked[1:-1, 1:-1] = self.floor > z
-            self._levels[z] = (blocked.ravel(), kernels.scan_tables(kernels.pack_rows(blocked)),
+            blocked = self.floor > z
+            self._levels[z] = (kernels.scan_tables(kernels.pack_rows(blocked)),
                                kernels.scan_tables(kernels.pack_columns(blocked)))
         return self._levels[z]
 

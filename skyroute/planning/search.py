@@ -39,8 +39,8 @@ class GridPlanner:
     times faster on city maps. ``method="astar"`` is the textbook A* (see ``kernels/gridsearch.py`` for both).
     ``expanded`` counts expanded search nodes: every cell for A*, only jump points for JPS.
 
-    Building the planner pads the grid once (one byte per cell) and, for JPS, packs it into bit tables for its
-    straight scans (another byte per cell); a query keeps its state in a hash table sized by the cells it
+    Building the planner packs the grid into bit tables for JPS's scans (a byte per cell in all; the textbook
+    A* keeps a padded byte copy instead); a query keeps its state in a hash table sized by the cells it
     stores, so a 10 m query costs microseconds and kilobytes even on a 10 km map. The first call in a fresh
     environment compiles the kernels (a few seconds); numba caches the machine code on disk, so later processes
     skip that.
@@ -69,12 +69,12 @@ class GridPlanner:
         self.grid = grid
         n, m = grid.shape
         self._width = m + 2
-        padded = np.ones((n + 2, m + 2), dtype=np.bool_)
-        padded[1:-1, 1:-1] = grid
-        self._blocked = padded.ravel()
         if method == "jps":  # the grid as bits, rows and columns, with what its straight scans need (kernels.bits)
-            self._bits = (kernels.scan_tables(kernels.pack_rows(padded)),
-                          kernels.scan_tables(kernels.pack_columns(padded)))
+            self._bits = (kernels.scan_tables(kernels.pack_rows(grid)), kernels.scan_tables(kernels.pack_columns(grid)))
+        else:
+            padded = np.ones((n + 2, m + 2), dtype=np.bool_)
+            padded[1:-1, 1:-1] = grid
+            self._blocked = padded.ravel()
         _load(method)
 
     def _flat(self, cell: tuple[int, int]) -> int:
@@ -111,7 +111,7 @@ class GridPlanner:
         goal = self.check_cell("goal", goal)
         s, t = self._flat(start), self._flat(goal)
         if self.method == "jps":
-            flat, cost, expanded, entries = kernels.jps(self._blocked, *self._bits, self._width, s, t, float(max_cost))
+            flat, cost, expanded, entries = kernels.jps(*self._bits, self._width, s, t, float(max_cost))
         else:
             flat, cost, expanded, entries = kernels.astar(self._blocked, self._width, s, t, float(max_cost))
         if cost < 0:
@@ -123,12 +123,13 @@ class GridPlanner:
 def _load(method: str) -> None:
     """Load (or compile) the kernels of ``method`` with the argument types :meth:`GridPlanner.plan` uses, so that
     the first real query times only its search."""
-    padded = np.ones((3, 3), np.bool_)
-    padded[1, 1] = False
+    grid = np.zeros((1, 1), np.bool_)
     if method == "jps":
-        tables = (kernels.scan_tables(kernels.pack_rows(padded)), kernels.scan_tables(kernels.pack_columns(padded)))
-        kernels.jps(padded.ravel(), *tables, 3, 4, 4, math.inf)
+        tables = (kernels.scan_tables(kernels.pack_rows(grid)), kernels.scan_tables(kernels.pack_columns(grid)))
+        kernels.jps(*tables, 3, 4, 4, math.inf)
     else:
+        padded = np.ones((3, 3), np.bool_)
+        padded[1, 1] = False
         kernels.astar(padded.ravel(), 3, 4, 4, math.inf)
 
 

@@ -7,8 +7,8 @@ direction with the index of the next word holding a stop (:func:`scan_tables`), 
 reads and a trailing or leading zero count, however long the street it runs along. North-south scans use a
 transposed copy (the grid's columns as bit rows).
 
-Grids here are the padded grids of ``gridsearch`` (one blocked cell round the map); bits past a row's end are
-set (blocked), so every scan ends inside its row.
+The bit grids are padded like ``gridsearch``'s (one blocked cell round the map, added while packing); bits past a
+row's end are set (blocked), so every scan ends inside its row.
 """
 
 from __future__ import annotations
@@ -47,40 +47,48 @@ def leading_zeros(typingctx, x):
 
 
 @njit(cache=True)
-def pack_rows(padded):
-    """``(n, m)`` bool -> ``(n, ceil(m / 64))`` uint64, bit ``k`` of word ``w`` = cell ``64 w + k``; past the end, 1."""
-    n, m = padded.shape
-    words = (m + 63) // 64
-    out = np.full((n, words), _ALL)
+def pack_rows(grid):
+    """The grid with a blocked border, as bits: ``(n + 2, ceil((m + 2) / 64))`` uint64 for an ``(n, m)`` bool grid.
+
+    Bit ``k`` of word ``w`` in row ``r`` is padded cell ``(r, 64 w + k)``, i.e. grid cell ``(r - 1, 64 w + k - 1)``;
+    the border and the bits past the row's end are set (blocked).
+    """
+    n, m = grid.shape
+    words = (m + 2 + 63) // 64
+    out = np.full((n + 2, words), _ALL)
     for i in range(n):
         for w in range(words):
             word = np.uint64(0)
-            for k in range(min(64, m - 64 * w)):
-                if padded[i, 64 * w + k]:
+            for k in range(64):
+                c = 64 * w + k
+                if c == 0 or c > m or grid[i, c - 1]:
                     word |= _ONE << np.uint64(k)
-            if m - 64 * w < 64:
-                word |= _ALL << np.uint64(m - 64 * w)
-            out[i, w] = word
+            out[i + 1, w] = word
     return out
 
 
 @njit(cache=True)
-def pack_columns(padded):
-    """The transposed bits: ``(m, ceil(n / 64))`` uint64, row ``j`` holding column ``j`` of ``padded``."""
-    n, m = padded.shape
-    words = (n + 63) // 64
-    out = np.full((m, words), _ALL)
-    for w in range(words):
-        rows = min(64, n - 64 * w)
+def pack_columns(grid):
+    """The transposed bits, border included: ``(m + 2, ceil((n + 2) / 64))`` uint64, row ``c`` holding padded
+    column ``c``."""
+    n, m = grid.shape
+    words = (n + 2 + 63) // 64
+    out = np.full((m + 2, words), _ALL)
+    for w in range(words):  # 64 padded rows at a time, read column by column (they stay in cache)
         for j in range(m):
             word = np.uint64(0)
-            for k in range(rows):
-                if padded[64 * w + k, j]:
+            for k in range(64):
+                r = 64 * w + k
+                if r == 0 or r > n or grid[r - 1, j]:
                     word |= _ONE << np.uint64(k)
-            if rows < 64:
-                word |= _ALL << np.uint64(rows)
-            out[j, w] = word
+            out[j + 1, w] = word
     return out
+
+
+@njit(cache=True, inline="always")
+def is_set(bits, row, index):
+    """Bit ``index`` of bit row ``row`` (a cell blocked)."""
+    return (bits[row, index >> 6] >> np.uint64(index & 63)) & _ONE != 0
 
 
 @njit(cache=True, inline="always")

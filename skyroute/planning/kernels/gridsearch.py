@@ -1,9 +1,10 @@
 """Compiled optimal grid searches: textbook A* and jump point search (JPS).
 
-Both work on a *padded, flattened* grid: the occupancy grid gets a one-cell blocked border and is raveled, so a
-cell is one integer ``v = (i + 1) * width + (j + 1)`` and its neighbours are ``v +/- 1`` (east/west) and
-``v +/- width`` (north/south). The border means no bounds checks in the loops. ``search.GridPlanner`` owns the
-padding.
+Both work on a *padded, flattened* grid: the occupancy grid gets a one-cell blocked border, so a cell is one
+integer ``v = (i + 1) * width + (j + 1)`` and its neighbours are ``v +/- 1`` (east/west) and ``v +/- width``
+(north/south). The border means no bounds checks in the loops. A* reads the padded grid as bytes; JPS reads only
+its bit tables (``bits``), an eighth of the bytes and built without a padded copy. ``search.GridPlanner`` owns
+both.
 
 Graph: 8-connected, straight cost 1, diagonal cost sqrt(2), a diagonal step only when both orthogonal cells it
 passes are free. Both searches return optimal costs on that graph:
@@ -29,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from skyroute.planning.kernels.bits import scan_down, scan_up
+from skyroute.planning.kernels.bits import is_set, scan_down, scan_up
 from skyroute.planning.kernels.heap import heap_pop, heap_push, new_heap
 from skyroute.planning.kernels.table import EMPTY, claim, find, new_table
 
@@ -139,7 +140,7 @@ def _scan(rows, columns, r, c, a, b, gr, gc):
 
 
 @njit(cache=True)
-def _jump(blocked, rows, columns, width, v, a, b, goal):
+def _jump(rows, columns, width, v, a, b, goal):
     """From flat cell ``v``, the first jump point in direction ``(a, b)`` (north, east unit steps), or -1.
 
     Diagonally, a cell is a jump point when it is the goal or a straight scan from it (along either component)
@@ -150,19 +151,18 @@ def _jump(blocked, rows, columns, width, v, a, b, goal):
     if a == 0 or b == 0:
         jr, jc = _scan(rows, columns, r, c, a, b, gr, gc)
         return -1 if jr < 0 else jr * width + jc
-    step_n = a * width
+    walls = rows[0]
     while True:
-        if blocked[v + step_n] or blocked[v + b]:
+        if is_set(walls, r + a, c) or is_set(walls, r, c + b):
             return -1  # would cut a corner
-        v += step_n + b
         r += a
         c += b
-        if blocked[v]:
+        if is_set(walls, r, c):
             return -1
-        if v == goal:
-            return v
+        if r == gr and c == gc:
+            return goal
         if _scan(rows, columns, r, c, a, 0, gr, gc)[0] >= 0 or _scan(rows, columns, r, c, 0, b, gr, gc)[0] >= 0:
-            return v
+            return r * width + c
 
 
 @njit(cache=True)
@@ -199,11 +199,12 @@ def _directions(v, p, width, dirs_n, dirs_e):
 
 
 @njit(cache=True)
-def jps(blocked, rows, columns, width, start, goal, max_cost):
+def jps(rows, columns, width, start, goal, max_cost):
     """Jump point search from flat cell ``start`` to ``goal``: ``(path, cost, expanded jump points, slots)``.
 
     ``rows`` and ``columns`` are the scan tables of the padded grid as bits (``bits.scan_tables`` of
-    ``bits.pack_rows(padded)`` and of ``bits.pack_columns(padded)``). Parent links join consecutive jump points,
+    ``bits.pack_rows(grid)`` and of ``bits.pack_columns(grid)``); the search reads nothing else of the grid.
+    Flat cells are those of the padded grid, ``width`` its row length. Parent links join consecutive jump points,
     which always lie on one straight or diagonal line; the returned path fills in the cells between them.
     """
     gi, gj = goal // width, goal % width
@@ -228,7 +229,7 @@ def jps(blocked, rows, columns, width, start, goal, max_cost):
             return _trace(keys, parent, goal, width), gv, expanded, keys.shape[0]
         vi, vj = v // width, v % width
         for k in range(_directions(v, parent[s], width, dirs_n, dirs_e)):
-            w = _jump(blocked, rows, columns, width, v, dirs_n[k], dirs_e[k], goal)
+            w = _jump(rows, columns, width, v, dirs_n[k], dirs_e[k], goal)
             if w < 0:
                 continue
             gw = gv + octile(vi, vj, w // width, w % width)

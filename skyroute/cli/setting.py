@@ -208,9 +208,11 @@ def save_plot(path, setting: Setting, plan: Plan, track_ne=None) -> None:
 
     floor = None
     if np.ptp(plan.waypoints[:, 2]) > 0:
-        from skyroute.planning.grid3d import floor_map
+        floor = plan.structure.get("floor")  # grid3d hands over its height map; otherwise build it
+        if floor is None:
+            from skyroute.planning.grid3d import floor_map
 
-        floor = floor_map(setting.city.obstacles, setting.safety_m)
+            floor = floor_map(setting.city.obstacles, setting.safety_m)
     plotting.save_plan_figure(
         path, setting.city.obstacles, plan, altitude_m=setting.altitude_m, safety_m=setting.safety_m,
         track_ne=track_ne,

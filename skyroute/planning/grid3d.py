@@ -397,7 +397,7 @@ class Grid3DPlanner:
                 "descent_weight": self.descent_weight,
                 "max_altitude_m": float(points[:, 2].max()),
             },
-            structure={"floor": (self.floor, self.north_offset, self.east_offset), "profile": points[:, :3]},
+            structure={"floor": (self.floor, self.north_offset, self.east_offset)},  # for plots
         )
 
     def _best_level(self, levels, start_level, goal_level, start_cell, goal_cell):

@@ -63,22 +63,20 @@ from skyroute.planning.kernels.lines import prune_los_mask, walk_supercover  # n
 from skyroute.planning.kernels.raster import rasterise, rasterise_max  # noqa: E402
 
 __all__ = [
-    "SQRT2", "astar", "compile_count", "heap_pop", "heap_push", "jps", "new_heap", "njit", "octile",
+    "SQRT2", "astar", "heap_pop", "heap_push", "jps", "new_heap", "njit", "octile",
     "on_first_compile", "pack_columns", "pack_rows", "prune_los_mask", "rasterise", "rasterise_max", "scan_tables",
     "walk_supercover",
 ]
 
 
 class _CompileWatch(event.Listener):
-    """Counts numba compilations in this process (cache loads are not compilations) and calls the callback
-    given to :func:`on_first_compile` when the first one starts."""
+    """Calls the callback given to :func:`on_first_compile` when numba next starts compiling (loading a kernel
+    from the disk cache is not compiling)."""
 
     def __init__(self) -> None:
-        self.count = 0
         self.callback: Callable[[], None] | None = None
 
     def on_start(self, ev) -> None:
-        self.count += 1
         callback, self.callback = self.callback, None
         if callback is not None:
             callback()
@@ -96,7 +94,3 @@ def on_first_compile(callback: Callable[[], None] | None) -> None:
     a fresh install or changed source). ``None`` cancels."""
     _watch.callback = callback
 
-
-def compile_count() -> int:
-    """How many kernel compilations this process has run (0 when everything came from the disk cache)."""
-    return _watch.count

@@ -310,7 +310,8 @@ def test_the_kernels_compile_once_and_load_from_the_disk_cache_after(walled_map,
     second = subprocess.run(args, capture_output=True, text=True, env=env, timeout=600)
     assert first.returncode == second.returncode == 0, first.stderr + second.stderr
     assert first.stderr.count("compiling the planner's kernels") == 1
-    assert "compiling" not in second.stderr and second.stdout == first.stdout
+    assert "compiling" not in second.stderr
+    assert second.stdout.splitlines()[:-1] == first.stdout.splitlines()[:-1]  # the same waypoints (not timings)
 
 
 def test_a_plan_only_grid_run_loads_no_graph_or_plotting_library():

@@ -28,8 +28,10 @@ from skyroute.cli.bundled_sim import BundledSim, sim_report_summary
 from skyroute.cli.exits import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, UserError
 from skyroute.cli.flying import fly, make_log_dir
 from skyroute.cli.setting import check_endpoint, load_setting, make_plan, plan_document, print_plan, save_plot
+from skyroute.cli.view_export import check_view_export, write_exports
 from skyroute.frames import Geodetic, geodetic_to_ned
 from skyroute.planning import PLANNERS, PLANNERS_3D
+from skyroute.view.live import DEFAULT_VIEW_PORT
 
 log = logging.getLogger("motion_planning")
 
@@ -98,6 +100,8 @@ def run(
     arm_timeout: float = 60.0,
     link_timeout: float = 30.0,
     log_dir: str | Path = "logs",
+    view: int | None = None,
+    export: Sequence[str] | None = None,
     out=None,
 ) -> int:
     """Plan (and, unless ``plan_only``, fly) one mission; returns the process exit code.
@@ -116,6 +120,7 @@ def run(
         raise UserError(f"--goal_alt needs a 3D planner ({' or '.join(PLANNERS_3D)}), not {planner}")
     if plot and not Path(plot).resolve().parent.is_dir():
         raise UserError(f"cannot write the plot {plot}: {Path(plot).resolve().parent} is not a directory")
+    check_view_export(view, export, plan_only=plan_only)
     map_given = map_path is not None
     map_path = map_path if map_given else DEFAULT_MAP
     setting = load_setting(map_path, alt, safety, map_given=map_given)
@@ -128,7 +133,7 @@ def run(
         make_log_dir(log_dir)
         options = dict(planner=planner, goal_alt_m=goal_alt, seed=seed, heartbeat_timeout_s=timeout,
                        arm_timeout_s=arm_timeout, link_lost_timeout_s=link_timeout, log_dir=log_dir, plot=plot,
-                       out=out)
+                       view_port=view, exports=export, out=out)
         if not sim:
             return fly(setting, goal_ne, connection=connection or f"tcp:{host}:{port}", **options)
         import time
@@ -160,6 +165,7 @@ def run(
         save_plot(plot, setting, plan)
         if not json_output:
             print(f"plot written to {plot}", file=out)
+    write_exports(export, setting, plan, out=None if json_output else out)
     return EXIT_OK
 
 
@@ -211,6 +217,13 @@ def build_parser() -> argparse.ArgumentParser:
     output.add_argument("--plan-only", dest="plan_only", action="store_true", help="plan and print; no drone")
     output.add_argument("--json", dest="json_output", action="store_true", help="print the plan as one JSON object")
     output.add_argument("--plot", metavar="FILE.png", help="draw the map, plan (and flown track) to a PNG")
+    output.add_argument("--view", nargs="?", type=int, const=DEFAULT_VIEW_PORT, metavar="PORT",
+                        help=f"serve a live 3D view of the flight on http://127.0.0.1:PORT/ (default port "
+                        f"{DEFAULT_VIEW_PORT}; 0 picks a free one)")
+    output.add_argument("--export", action="append", metavar="FILE",
+                        help="write the plan (and after a flight the flown track) to FILE, format from the "
+                        "extension: .plan (QGroundControl), .waypoints (MAVProxy/Mission Planner), .geojson, .kml; "
+                        "repeatable")
     output.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
     output.add_argument("-q", "--quiet", action="store_true",
                         help="no progress lines on stderr (such as the first run's 'compiling' notice)")

@@ -291,6 +291,7 @@ def test_prm_whose_roadmap_cannot_reach_a_courtyard_plans_through_its_fallback(t
     assert doc["stats"]["fallback"] == "grid3d" and max(w[2] for w in doc["waypoints"]) >= 41
 
 
+@pytest.mark.compile_notice
 def test_the_compile_notice_is_printed_unless_quiet(walled_map, capsys):
     import numba
 

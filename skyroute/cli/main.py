@@ -31,7 +31,7 @@ from skyroute.cli.setting import check_endpoint, load_setting, make_plan, plan_d
 from skyroute.cli.view_export import check_view_export, write_exports
 from skyroute.frames import Geodetic, geodetic_to_ned
 from skyroute.planning import PLANNERS, PLANNERS_3D
-from skyroute.view.live import DEFAULT_VIEW_PORT
+from skyroute.view import DEFAULT_VIEW_PORT
 
 log = logging.getLogger("motion_planning")
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -40,6 +39,8 @@ def make_log_dir(log_dir: str | Path) -> Path:
 
 def open_logs(log_dir: str | Path) -> tuple[Path, Path, logging.Handler]:
     """Create ``log_dir`` and a navigation log handler (flushed after every record) plus a tlog path."""
+    import time
+
     log_dir = make_log_dir(log_dir)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     nav_path, tlog_path = log_dir / f"navlog-{stamp}.txt", log_dir / f"flight-{stamp}.tlog"
@@ -103,7 +104,6 @@ def fly(
     view = None
 
     def plan_from(start_north_m: float, start_east_m: float) -> np.ndarray:
-        started = time.monotonic()
         try:
             plan = make_plan(
                 setting, (start_north_m, start_east_m), goal_ne, planner,
@@ -112,9 +112,6 @@ def fly(
         except UserError as exc:
             raise PlanRefused(exc) from None
         log.info(plan_summary(plan))
-        if time.monotonic() - started > 2.0 and not plans:
-            say(f"planned in {time.monotonic() - started:.1f} s (the first run compiles the planner; later runs "
-                "reuse the compiled code)")
         plans.append(plan)
         return plan.waypoints
 

@@ -45,11 +45,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from skyroute.view import DEFAULT_VIEW_PORT
+
 log = logging.getLogger(__name__)
 
 PROTOCOL_VERSION = 1
-#: ``--view`` without a port serves on this one (127.0.0.1 only).
-DEFAULT_VIEW_PORT = 8765
 LATEST_CHANNELS = ("state", "plan", "known_area", "frontiers")
 APPEND_CHANNELS = ("track", "events", "obstacles")
 

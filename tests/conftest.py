@@ -95,6 +95,15 @@ class SimClient:
         self.send(mavlink.MAVLink_command_long_message(target[0], target[1], command, 0, *p))
         return self.wait_for("COMMAND_ACK", lambda m: m.command == command, timeout_s, since)
 
+    def arm(self, timeout_s: float = 10.0):
+        """Ask to arm until the autopilot accepts (it refuses while it boots); return the last COMMAND_ACK."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            ack = self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+            if ack.result == mavlink.MAV_RESULT_ACCEPTED or time.monotonic() > deadline:
+                return ack
+            time.sleep(0.05)
+
     def set_mode_px4(self, main: int, sub: int = 0):
         return self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
 
@@ -113,6 +122,11 @@ class SimClient:
         except OSError:
             pass
         self.thread.join(2)
+
+
+def wait_ready(sim, timeout_s: float = 10.0) -> dict:
+    """Wait until the simulated vehicle has booted far enough to arm (its pre-arm checks pass)."""
+    return sim.wait_until(lambda s: s["ready"], timeout_s)
 
 
 @pytest.fixture

@@ -9,11 +9,14 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from tests.conftest import wait_ready
+
 M = mavlink
 SF_MAP = Path("/work/shared/maps/udacity_sf_colliders.csv")
 
 
 def _takeoff_offboard(c, sim, north=0.0, east=0.0, altitude_m=5.0):
+    wait_ready(sim)
     c.setpoint_local(north, east, -altitude_m)
     assert c.set_mode_px4(6).result == 0
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
@@ -27,6 +30,7 @@ def test_two_clients_each_get_telemetry_and_their_own_acks(sim_start, sim_connec
     gcs.wait_for("HEARTBEAT")
     mission.wait_for("HEARTBEAT")
     assert sim.clients() == 2
+    wait_ready(sim)
     since = gcs.mark()
     ack = mission.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     assert (ack.result, ack.target_system) == (M.MAV_RESULT_ACCEPTED, 254)
@@ -47,7 +51,9 @@ def test_rtl_returns_home_and_lands(sim_start, sim_connect):
     sim.wait_until(lambda s: abs(s["position"]["north_m"] + 20) < 0.05, 10)
     assert c.command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH).result == 0
     state = sim.wait_until(lambda s: s["on_ground"] and not s["armed"], 30)
-    assert state["mode"] == "RTL"
+    # Disarmed after the landing, PX4 goes back to the last mode the user chose that allows arming.
+    assert state["mode"] == "OFFBOARD"
+    assert [e["text"] for e in sim.report()["events"] if e["kind"] == "mode"][-2:] == ["mode RTL", "mode OFFBOARD"]
     report = sim.report()
     assert report["max_altitude_m"] == pytest.approx(8.0, abs=0.15)  # climbed to RTL_RETURN_ALT first
     assert (report["landed"]["north_m"], report["landed"]["east_m"]) == pytest.approx((0.0, 0.0), abs=0.1)

@@ -212,10 +212,11 @@ class Simulator:
         now = ap.sim_time_s
         cache: dict = {}
         snap = None
+        def ready(msg_id: int) -> bool:
+            return streams.available(ap, msg_id)
+
         for link in links:
-            for msg_id in ap.scheduler.due(link, now):
-                if not streams.available(ap, msg_id):
-                    continue
+            for msg_id in ap.scheduler.due(link, now, ready):
                 if msg_id not in cache:
                     snap = snap or ap.snapshot()
                     cache[msg_id] = streams.build(ap, msg_id, snap)

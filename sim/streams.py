@@ -111,12 +111,15 @@ class StreamScheduler:
     def default_hz(self, msg_id: int) -> float | None:
         return default_rates_hz(self.autopilot).get(msg_id)
 
-    def due(self, link, now_s: float) -> list[int]:
-        """Message ids due on ``link`` now; advances their due times."""
+    def due(self, link, now_s: float, ready=None) -> list[int]:
+        """Message ids due on ``link`` now (and ``ready(msg_id)``, if given); advances their due times.
+
+        A message that is due but not ready keeps its turn, so it goes out as soon as it is ready.
+        """
         out = []
         for msg_id, interval in link.intervals.items():
             due = link.next_due.get(msg_id, now_s)
-            if now_s + 1e-9 < due:
+            if now_s + 1e-9 < due or (ready is not None and not ready(msg_id)):
                 continue
             out.append(msg_id)
             nxt = due + interval

@@ -31,6 +31,7 @@ class SimClient:
         self.messages: list = []
         self.cond = threading.Condition()
         self._stop = threading.Event()
+        self._heartbeat_stop: threading.Event | None = None
         self._send_lock = threading.Lock()
         self.thread = threading.Thread(target=self._read, daemon=True)
         self.thread.start()
@@ -115,7 +116,25 @@ class SimClient:
             0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, type_mask, north, east, z, 0, 0, 0, 0, 0, 0,
             yaw if math.isfinite(yaw) else 0.0, 0))
 
+    def start_heartbeats(self, hz: float, mav_type: int = mavlink.MAV_TYPE_GCS) -> None:
+        """Send HEARTBEATs (as a ground station by default) at ``hz`` (wall clock) until :meth:`stop_heartbeats`."""
+        self.stop_heartbeats()
+        stop = self._heartbeat_stop = threading.Event()
+
+        def run() -> None:
+            while not stop.is_set():
+                self.send(mavlink.MAVLink_heartbeat_message(mav_type, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+                stop.wait(1.0 / hz)
+
+        threading.Thread(target=run, daemon=True).start()
+
+    def stop_heartbeats(self) -> None:
+        if self._heartbeat_stop is not None:
+            self._heartbeat_stop.set()
+            self._heartbeat_stop = None
+
     def close(self) -> None:
+        self.stop_heartbeats()
         self._stop.set()
         try:
             self.sock.close()

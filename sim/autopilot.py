@@ -155,6 +155,11 @@ class Autopilot(CommandHandlers):
         for msg in tm.statustext(severity, text):
             self.send(link, msg)
 
+    def delivers(self, link, msg) -> bool:
+        """Whether ``msg`` goes out on ``link``: PX4 sends STATUSTEXT only to a link it has had a ground station's
+        HEARTBEAT on (measured: no text at all for a client without one, or with an onboard-controller one)."""
+        return not (self.is_px4 and msg.get_type() == "STATUSTEXT" and not getattr(link, "gcs_seen", True))
+
     # ------------------------------------------------------------------ modes and tasks
     def enter_mode(self, mode: Mode, task: Task | None = None, user: bool = True) -> None:
         """Switch to ``mode`` (with ``task``, else the mode's default task); ``user``: the user's own choice."""
@@ -265,6 +270,8 @@ class Autopilot(CommandHandlers):
         elif kind == "REQUEST_DATA_STREAM":
             self._on_request_data_stream(link, msg)
         elif kind == "HEARTBEAT":
+            if msg.type == M.MAV_TYPE_GCS:
+                link.gcs_seen = True
             self.failsafes.on_heartbeat(msg)
         elif kind == "PING" and msg.target_system == 0 and self.is_px4:  # ArduPilot does not answer
             self.send(link, M.MAVLink_ping_message(msg.time_usec, msg.seq, msg.get_srcSystem(),
@@ -456,7 +463,7 @@ class Autopilot(CommandHandlers):
         local = pos - self.origin_neu
         home_local = home - self.origin_neu
         roll, pitch, yaw = self.quad.attitude()
-        base = self.mode.base_flags | (M.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        base = self.personality.base_mode(self.mode, self.armed, self.airborne)
         v = s.velocity_neu
         has_fix = self.sim_time_s >= self.boot.gps_fix_s
         if self.is_px4:

@@ -76,6 +76,8 @@ class LinkState:
     intervals: dict = field(default_factory=dict)
     next_due: dict = field(default_factory=dict)
     warned: set = field(default_factory=set)
+    #: A ground station's HEARTBEAT (type GCS) has arrived on this link.
+    gcs_seen: bool = False
 
 
 class CommandHandlers:

@@ -116,6 +116,10 @@ class Personality:
         """Mode for a SET_MODE message's ``custom_mode``."""
         return self.by_custom.get(int(custom_mode))
 
+    def base_mode(self, mode: Mode, armed: bool, airborne: bool) -> int:
+        """HEARTBEAT base_mode of ``mode`` now."""
+        return mode.base_flags | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
+
 
 #: PX4's own names of its modes (commander's nav_state names), used in its messages.
 _PX4_LABELS = {
@@ -152,12 +156,15 @@ class Px4(Personality):
     _NOT_ARMABLE = {"LAND", "RTL", "MISSION"} | _NEEDS_RC
     #: Modes PX4 has that the sim refuses (no follow target, no ground station position).
     UNSUPPORTED = {"RTGS", "FOLLOWME"}
+    #: HEARTBEAT base flags where PX4 1.15 differs from ``mavutil.px4_map`` (measured on SITL).
+    _BASE_FLAGS = {"OFFBOARD": mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED}
 
     def __init__(self) -> None:
         modes = []
         for name, (flags, main, sub) in mavutil.px4_map.items():
             if name in self._BEHAVIOUR:
                 refusal = PX4_ARMING_DENIED if name in self._NOT_ARMABLE else ""
+                flags = self._BASE_FLAGS.get(name, flags)
                 modes.append(Mode(name, px4_custom_mode(main, sub), flags, self._BEHAVIOUR[name], refusal,
                                   _PX4_LABELS[name], name in self._NEEDS_RC))
         super().__init__(modes)
@@ -221,8 +228,10 @@ class ArduCopter(Personality):
     #: ArduCopter's own mode names (Mode::name()) where they differ from pymavlink's.
     _LABELS = {"SMART_RTL": "SMARTRTL"}
     _NOT_ARMABLE = {"RTL", "SMART_RTL", "LAND", "BRAKE"}
-    #: base_mode has GUIDED_ENABLED in these (GCS_MAVLINK_Copter::base_mode()).
-    _GUIDED_FLAG = {"AUTO", "RTL", "LOITER", "GUIDED", "POSHOLD", "BRAKE", "SMART_RTL"}
+    #: base_mode has GUIDED_ENABLED while the position controller runs: measured on SITL, disarmed on the ground,
+    #: in these modes; RTL, SMART_RTL and AUTO only run it in flight.
+    _GUIDED_FLAG = {"LOITER", "GUIDED", "POSHOLD", "BRAKE", "LAND"}
+    GUIDED_FLAG_IN_FLIGHT = {"AUTO", "RTL", "SMART_RTL"}
     #: Modes in which NAV_TAKEOFF works (modes with a user takeoff).
     TAKEOFF_MODES = {"GUIDED", "LOITER", "ALT_HOLD", "POSHOLD"}
 
@@ -242,6 +251,12 @@ class ArduCopter(Personality):
                     refusal = ""
                 modes.append(Mode(name, number, flags, self._BEHAVIOUR[name], refusal, label))
         super().__init__(modes)
+
+    def base_mode(self, mode: Mode, armed: bool, airborne: bool) -> int:
+        flags = super().base_mode(mode, armed, airborne)
+        if airborne and mode.name in self.GUIDED_FLAG_IN_FLIGHT:
+            flags |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        return flags
 
     def mode_for(self, behaviour: Behaviour) -> Mode:
         return self.modes[

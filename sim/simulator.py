@@ -192,14 +192,13 @@ class Simulator:
             self.on_event(line)
 
     def _send(self, link, msg) -> None:
-        if self._server is None:
+        if self._server is None or not hasattr(self, "autopilot"):
             return
-        sim_s = self.autopilot.sim_time_s if hasattr(self, "autopilot") else 0.0
-        if link is None:
-            for each in self._server.links:
+        ap = self.autopilot
+        sim_s = ap.sim_time_s
+        for each in (self._server.links if link is None else [link]):
+            if ap.delivers(each, msg):
                 each.queue(msg, sim_s)
-        else:
-            link.queue(msg, sim_s)
         if self._tlog is not None:
             self._tlog.queue(msg, sim_s)
 

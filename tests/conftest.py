@@ -177,12 +177,19 @@ def sim_start(sim_map):
 
 @pytest.fixture
 def sim_connect():
-    """``sim_connect(port) -> SimClient``; all closed at teardown."""
+    """``sim_connect(sim_or_port, gcs=True) -> SimClient``; all closed at teardown.
+
+    Given a :class:`Simulator`, the client heartbeats as a ground station once per simulated second (PX4 sends
+    STATUSTEXT only to a link it has a ground station's heartbeat on); given a port, it sends none.
+    """
     clients = []
 
-    def connect(port: int, **kwargs) -> SimClient:
+    def connect(target, gcs: bool = True, **kwargs) -> SimClient:
+        port = target if isinstance(target, int) else target.port
         c = SimClient(port, **kwargs)
         clients.append(c)
+        if gcs and not isinstance(target, int):
+            c.start_heartbeats(min(50.0, target.config.speedup))
         return c
 
     yield connect

@@ -44,7 +44,7 @@ def _arm_attempts(c, until_s: float, sim) -> list[tuple[float, int, str]]:
 @pytest.mark.flight
 def test_arducopter_boot_timeline_and_prearm_texts(sim_start, sim_connect):
     sim = sim_start(autopilot="ardupilot", boot="arducopter", speedup=25.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _request(c, {M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 5, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 5,
                  M.MAVLINK_MSG_ID_GPS_RAW_INT: 5})
@@ -79,7 +79,7 @@ def test_arducopter_boot_timeline_and_prearm_texts(sim_start, sim_connect):
 @pytest.mark.flight
 def test_px4_stock_boot_timeline(sim_start, sim_connect):
     sim = sim_start(boot="px4", strict=True, speedup=25.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("LOCAL_POSITION_NED")
     attempts = _arm_attempts(c, 45.0, sim)
     c.wait_for("GLOBAL_POSITION_INT", timeout_s=5)
@@ -94,7 +94,7 @@ def test_px4_stock_boot_timeline(sim_start, sim_connect):
 
 def test_px4_heartbeat_starts_late_and_sys_status_reports_prearm_once_ready(sim_start, sim_connect):
     sim = sim_start(boot="px4-fast-align", speedup=4.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     hb = c.wait_for("HEARTBEAT", timeout_s=5)
     assert hb.autopilot == M.MAV_AUTOPILOT_PX4
     # PX4's local position streams from 0.4 s, its heartbeat only from ~1.4 s after launch.
@@ -113,7 +113,7 @@ def test_requests_for_what_is_not_there_yet_are_accepted_and_answered_later(sim_
     """ArduCopter before its EKF origin: REQUEST_MESSAGE GPS_GLOBAL_ORIGIN / HOME_POSITION ACCEPTED with nothing
     sent, GET_HOME_POSITION FAILED (measured); afterwards the same requests get the messages."""
     sim = sim_start(autopilot="ardupilot", boot="arducopter", speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     since = c.mark()
     assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN).result == M.MAV_RESULT_ACCEPTED

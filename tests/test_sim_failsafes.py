@@ -31,7 +31,7 @@ def _event_time(sim, kind: str, fragment: str = "") -> float:
 def test_armed_on_the_ground_without_takeoff_disarms_after_10_s(sim_start, sim_connect, autopilot, text):
     """DISARM_DELAY (ArduCopter) and COM_DISARM_PRFLT (PX4) both default to 10 s: SITL disarmed at 10 s."""
     sim = sim_start(autopilot=autopilot, speedup=10.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     if autopilot == "ardupilot":
@@ -49,7 +49,7 @@ def test_ardupilot_flies_three_missions_on_one_running_sim(sim_start, sim_connec
     """After a landing in LAND, arming is refused ("Arm: LAND mode not armable", FAILED) until the client
     selects GUIDED; then the next mission flies. Home moves to where the vehicle arms; the EKF origin stays."""
     sim = sim_start(autopilot="ardupilot", speedup=20.0, origin="boot")
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     for mission in range(3):  # east along the map, clear of its one building
@@ -80,7 +80,7 @@ def test_px4_flies_three_offboard_missions_on_one_running_sim(sim_start, sim_con
     the setpoint stream first, then each mission flies. Landing: ON_GROUND ~1 s after touchdown, disarm 2 s later.
     (Local frame at the EKF origin, as the real PX4's: with ``origin="home"`` it would move with home at arming.)"""
     sim = sim_start(strict=True, speedup=5.0, origin="boot")
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     target = [0.0, 0.0, -5.0]
@@ -113,7 +113,7 @@ def test_px4_flies_three_offboard_missions_on_one_running_sim(sim_start, sim_con
 def test_landed_state_sequences(sim_start, sim_connect):
     """PX4 (NAV_TAKEOFF, then NAV_LAND): ON_GROUND, TAKEOFF while climbing, IN_AIR, LANDING, ON_GROUND."""
     sim = sim_start(speedup=5.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
@@ -135,7 +135,7 @@ def test_ardupilot_guided_target_moves_on_for_guid_timeout_then_stops(sim_start,
     """SITL: a target 10 m ahead with 2 m/s feed-forward, then no more setpoints, ended 16 m out: the target
     moves along the velocity for GUID_TIMEOUT (3 s). A velocity-only target: 2 m/s for 3 s, then a stop."""
     sim = sim_start(autopilot="ardupilot", speedup=10.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == 0
@@ -163,7 +163,7 @@ def test_ardupilot_guided_target_moves_on_for_guid_timeout_then_stops(sim_start,
 def test_ardupilot_gcs_heartbeat_loss(sim_start, sim_connect, fs_gcs_enable, mode):
     """FS_GCS_ENABLE 0 (default): SITL stayed GUIDED and armed; enabled: "GCS Failsafe" after FS_GCS_TIMEOUT."""
     sim = sim_start(autopilot="ardupilot", speedup=5.0, params={"FS_GCS_ENABLE": fs_gcs_enable})
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.start_heartbeats(5.0)  # 1 Hz simulated, from system 255
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
@@ -190,7 +190,7 @@ def test_ardupilot_gcs_heartbeat_loss(sim_start, sim_connect, fs_gcs_enable, mod
 
 def test_px4_datalink_loss_announces_and_takes_nav_dll_act(sim_start, sim_connect):
     sim = sim_start(speedup=10.0, params={"NAV_DLL_ACT": 2})
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.start_heartbeats(10.0)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
@@ -208,7 +208,7 @@ def test_px4_datalink_loss_announces_and_takes_nav_dll_act(sim_start, sim_connec
 def test_scaled_timeouts_follow_px4s_sitl_convention(sim_start, sim_connect):
     """scale_timeouts: link-loss timeouts x speedup, as PX4's rcS does with PX4_SIM_SPEED_FACTOR (read back)."""
     sim = sim_start(speedup=8.0, scale_timeouts=True)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     since = c.mark()
     c.send(M.MAVLink_param_request_read_message(1, 1, b"COM_OF_LOSS_T", -1))

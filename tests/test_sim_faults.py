@@ -31,7 +31,7 @@ def _ping_rtts(c, count: int, gap_s: float, timeout_s: float = 1.0) -> list:
 
 def test_packet_loss_drops_both_directions(sim_start, sim_connect):
     sim = sim_start(faults={"packet_loss_pct": 30.0}, seed=3)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT", timeout_s=5)
     since = c.mark()
     for seq in range(200):
@@ -47,7 +47,7 @@ def test_packet_loss_drops_both_directions(sim_start, sim_connect):
 
 def test_no_faults_by_default(sim_start, sim_connect):
     sim = sim_start()
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     rtts = _ping_rtts(c, 10, 0.0)
     assert all(r is not None and r < 0.1 for r in rtts)
@@ -57,7 +57,7 @@ def test_no_faults_by_default(sim_start, sim_connect):
 def test_latency_is_in_simulated_milliseconds(sim_start, sim_connect, speedup):
     """300 ms of simulated latency each way: a 600 ms simulated round trip, i.e. 600 / speedup ms of wall time."""
     sim = sim_start(speedup=speedup, faults={"latency_ms": 300.0})
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT", timeout_s=3)
     rtts = _ping_rtts(c, 4, 0.0, timeout_s=2.0)
     expected = 0.6 / speedup
@@ -70,7 +70,7 @@ def test_latency_is_in_simulated_milliseconds(sim_start, sim_connect, speedup):
 def test_outage_in_simulated_seconds_is_the_same_at_any_speedup(sim_start, sim_connect, speedup):
     """An outage from 3 s to 6 s of simulated time: no packet stamped inside it arrives, the link then recovers."""
     sim = sim_start(speedup=speedup, faults={"outage_start_s": 3.0, "outage_duration_s": 3.0})
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     c.wait_for("ATTITUDE", lambda m: m.time_boot_ms > 7_000, timeout_s=5)
     stamps_s = [m.time_boot_ms / 1000 for m in c.messages if hasattr(m, "time_boot_ms")]
@@ -82,7 +82,7 @@ def test_outage_in_simulated_seconds_is_the_same_at_any_speedup(sim_start, sim_c
 
 def test_outage_drops_commands(sim_start, sim_connect):
     sim = sim_start(faults={"outage_start_s": 0.0, "outage_duration_s": 10.0})
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     with pytest.raises(TimeoutError):
         c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1, timeout_s=0.3)
     assert not sim.truth()["armed"]
@@ -90,7 +90,7 @@ def test_outage_drops_commands(sim_start, sim_connect):
 
 def test_deny_first_n_arms(sim_start, sim_connect):
     sim = sim_start(faults={"deny_arm_count": 2})
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     since = c.mark()
@@ -102,7 +102,7 @@ def test_deny_first_n_arms(sim_start, sim_connect):
 
 def test_deny_named_command(sim_start, sim_connect):
     sim = sim_start(faults={"deny_commands": ("NAV_TAKEOFF",)})
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     assert c.arm().result == M.MAV_RESULT_ACCEPTED
     nan = float("nan")

@@ -71,7 +71,7 @@ def test_classic_motion_planning_send_waypoints_then_takeoff(sim_start, sim_conn
     after junk whose fake header announces 255 payload bytes is answered at once, not held back.
     """
     sim = sim_start(speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     assert c.arm().result == M.MAV_RESULT_ACCEPTED  # arm(), once the vehicle has booted
     assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_ACCEPTED  # take_control()

@@ -42,7 +42,7 @@ def streaming(client, target, hz: float = 20.0):
 
 def test_px4_identity_and_default_streams_after_boot(sim_start, sim_connect):
     sim = sim_start()
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     hb = c.wait_for("HEARTBEAT", timeout_s=3)
     assert (hb.get_srcSystem(), hb.get_srcComponent()) == (1, 1)
     assert hb.get_msgbuf()[0] == 0xFD  # MAVLink 2 framing
@@ -69,7 +69,7 @@ def test_px4_identity_and_default_streams_after_boot(sim_start, sim_connect):
 
 def test_every_command_acked_to_its_sender_and_unknown_unsupported(sim_start, sim_connect):
     sim = sim_start()
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     expected = {
         M.MAV_CMD_REQUEST_MESSAGE: ((M.MAVLINK_MSG_ID_AUTOPILOT_VERSION,), M.MAV_RESULT_ACCEPTED),
@@ -96,7 +96,7 @@ def test_every_command_acked_to_its_sender_and_unknown_unsupported(sim_start, si
 
 def test_params_ping_and_message_intervals_in_simulated_time(sim_start, sim_connect):
     sim = sim_start(speedup=2.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     since = c.mark()
     c.send(M.MAVLink_param_request_list_message(1, 1))
@@ -133,7 +133,7 @@ def test_params_ping_and_message_intervals_in_simulated_time(sim_start, sim_conn
 
 def test_set_home_moves_local_origin(sim_start, sim_connect):
     sim = sim_start(origin="home")
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     # 0.0001 deg of latitude north of the map origin is ~11.1 m; the vehicle is at the origin.
@@ -150,7 +150,7 @@ def test_set_home_moves_local_origin(sim_start, sim_connect):
 def test_home_and_origin_are_where_the_vehicle_boots(sim_start, sim_connect, origin):
     # Start 20 m east of the map origin (~0.000227 deg of longitude at 37.79 N).
     sim = sim_start(start=(37.792480, -122.397223), origin=origin)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     wait_ready(sim)
     since = c.mark()
     home = c.wait_for("HOME_POSITION", since=since)
@@ -174,7 +174,7 @@ def test_home_and_origin_are_where_the_vehicle_boots(sim_start, sim_connect, ori
 def test_classic_udacidrone_dialect(sim_start, sim_connect):
     """The udacidrone PX4=False sequence: offboard + arm before any setpoint, z as positive altitude."""
     sim = sim_start(speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     assert c.command(M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 37.792480, -122.397450, 0).result == 0
     assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_ACCEPTED  # take_control()
@@ -209,7 +209,7 @@ def test_strict_offboard_rules_are_px4s_and_classic_bits_are_ignored(sim_start, 
     Speed-up 5: a 20 Hz stream is 4 Hz of simulated time, above PX4's 2 Hz (COM_OF_LOSS_T = 1 s simulated).
     """
     sim = sim_start(strict=True, speedup=5.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_ACCEPTED
@@ -243,7 +243,7 @@ def test_strict_offboard_loss_after_com_of_loss_t_takes_com_obl_rc_act(sim_start
     return, Land does not."""
     params = {} if action is None else {"COM_OBL_RC_ACT": action}
     sim = sim_start(strict=True, speedup=5.0, params=params)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     with streaming(c, lambda: (0.0, 0.0, -5.0)):
@@ -278,7 +278,7 @@ def _offboard_takeoff(c, sim, altitude_m: float = 5.0) -> None:
 @pytest.mark.flight
 def test_flying_through_a_building_is_a_collision(sim_start, sim_connect):
     sim = sim_start(speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _offboard_takeoff(c, sim)
     since = c.mark()
@@ -299,7 +299,7 @@ def test_flying_through_a_building_is_a_collision(sim_start, sim_connect):
 @pytest.mark.flight
 def test_flying_around_a_building_reports_clearance(sim_start, sim_connect, tmp_path):
     sim = sim_start(speedup=20.0, report_path=tmp_path / "report.json")
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _offboard_takeoff(c, sim)
     c.setpoint_local(0.0, 15.0, -5.0)
@@ -321,7 +321,7 @@ def test_flying_around_a_building_reports_clearance(sim_start, sim_connect, tmp_
 @pytest.mark.flight
 def test_ardupilot_personality(sim_start, sim_connect):
     sim = sim_start(autopilot="ardupilot", speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     hb = c.wait_for("HEARTBEAT")
     assert hb.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA and hb.type == M.MAV_TYPE_QUADROTOR
     acm = {v: k for k, v in mavutil.mode_mapping_acm.items()}
@@ -356,7 +356,7 @@ def test_ardupilot_personality(sim_start, sim_connect):
 def test_tlog_is_readable_by_pymavlink(sim_start, sim_connect, tmp_path):
     path = tmp_path / "flight.tlog"
     sim = sim_start(tlog_path=path)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     c.arm()
     time.sleep(1.1)

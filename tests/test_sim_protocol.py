@@ -56,7 +56,7 @@ def _read_param(c, name: str):
 @pytest.mark.parametrize("autopilot, table", [("ardupilot", ARDUCOPTER_PARAMS), ("px4", PX4_PARAMS)])
 def test_parameter_names_defaults_and_types_are_the_real_ones(sim_start, sim_connect, autopilot, table):
     sim = sim_start(autopilot=autopilot)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     for name, (value, ptype) in table.items():
         pv = _read_param(c, name)
@@ -81,7 +81,7 @@ def test_parameter_names_defaults_and_types_are_the_real_ones(sim_start, sim_con
 
 def test_px4_int32_param_set_is_bytewise_and_changes_behaviour(sim_start, sim_connect):
     sim = sim_start(strict=True, speedup=5.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wire = struct.unpack("<f", struct.pack("<i", 5))[0]
     since = c.mark()
@@ -93,7 +93,7 @@ def test_px4_int32_param_set_is_bytewise_and_changes_behaviour(sim_start, sim_co
 def test_ardupilot_param_set_changes_behaviour(sim_start, sim_connect):
     """DISARM_DELAY = 3: armed on the ground, ArduCopter disarms after 3 s instead of 10 (simulated time)."""
     sim = sim_start(autopilot="ardupilot", speedup=10.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     since = c.mark()
     c.send(M.MAVLink_param_set_message(1, 1, b"DISARM_DELAY", 3.0, M.MAV_PARAM_TYPE_INT8))
@@ -109,7 +109,7 @@ def test_ardupilot_param_set_changes_behaviour(sim_start, sim_connect):
 def test_ardupilot_volunteers_only_heartbeats_until_asked(sim_start, sim_connect):
     """Fresh link, default SRx: HEARTBEAT at 1 Hz (simulated), plus home/origin once set and STATUSTEXT."""
     sim = sim_start(autopilot="ardupilot", speedup=10.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     time.sleep(0.5)  # 5 s simulated
@@ -134,7 +134,7 @@ def test_ardupilot_volunteers_only_heartbeats_until_asked(sim_start, sim_connect
 
 def test_px4_streams_its_onboard_link_set_at_its_rates(sim_start, sim_connect):
     sim = sim_start(speedup=1.0, boot="instant")
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     time.sleep(0.3)
     since = c.mark()
@@ -152,7 +152,7 @@ def test_px4_streams_its_onboard_link_set_at_its_rates(sim_start, sim_connect):
 @pytest.mark.parametrize("autopilot", ["ardupilot", "px4"])
 def test_command_results_match_the_real_autopilot(sim_start, sim_connect, autopilot):
     sim = sim_start(autopilot=autopilot, strict=True)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     px4 = autopilot == "px4"
@@ -178,7 +178,7 @@ def test_command_results_match_the_real_autopilot(sim_start, sim_connect, autopi
 def test_requested_messages_come_in_the_real_order_around_the_ack(sim_start, sim_connect, autopilot):
     """REQUEST_MESSAGE GPS_GLOBAL_ORIGIN: ArduCopter acks first, PX4 sends the message first (measured)."""
     sim = sim_start(autopilot=autopilot)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     since = c.mark()
@@ -193,7 +193,7 @@ def test_requested_messages_come_in_the_real_order_around_the_ack(sim_start, sim
 @pytest.mark.parametrize("autopilot", ["ardupilot", "px4"])
 def test_set_mode_message_ack_ping_and_timesync(sim_start, sim_connect, autopilot):
     sim = sim_start(autopilot=autopilot)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     custom = (4 << 16) | (3 << 24) if autopilot == "px4" else 5  # LOITER
     since = c.mark()

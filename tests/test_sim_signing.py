@@ -36,7 +36,7 @@ def _signed(client, key: bytes, link_id: int = 7) -> None:
 
 def test_signed_link_works_and_everything_the_sim_sends_is_signed(sim_start, sim_connect):
     sim = sim_start(signing_key=KEY_TEXT)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim, gcs=False)
     _signed(c, secret_key(KEY_TEXT))
     hb = c.wait_for("HEARTBEAT", timeout_s=3)
     assert hb.get_msgbuf()[2] & M.MAVLINK_IFLAG_SIGNED  # incompat flags: signed
@@ -49,7 +49,7 @@ def test_signed_link_works_and_everything_the_sim_sends_is_signed(sim_start, sim
 @pytest.mark.parametrize("client_key", [None, "another key"])
 def test_unsigned_or_wrongly_signed_frames_are_dropped_and_counted(sim_start, sim_connect, client_key):
     sim = sim_start(signing_key=KEY_TEXT)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim, gcs=False)
     if client_key is not None:
         _signed(c, secret_key(client_key))
     for _ in range(5):

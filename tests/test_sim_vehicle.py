@@ -25,8 +25,8 @@ def _takeoff_offboard(c, sim, north=0.0, east=0.0, altitude_m=5.0):
 
 def test_two_clients_each_get_telemetry_and_their_own_acks(sim_start, sim_connect):
     sim = sim_start()
-    gcs = sim_connect(sim.port, system=255, component=190)
-    mission = sim_connect(sim.port, system=254, component=191)
+    gcs = sim_connect(sim, system=255, component=190)
+    mission = sim_connect(sim, system=254, component=191)
     gcs.wait_for("HEARTBEAT")
     mission.wait_for("HEARTBEAT")
     assert sim.clients() == 2
@@ -41,7 +41,7 @@ def test_two_clients_each_get_telemetry_and_their_own_acks(sim_start, sim_connec
 @pytest.mark.flight
 def test_rtl_returns_home_and_lands(sim_start, sim_connect):
     sim = sim_start(speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     since = c.mark()
     c.send(M.MAVLink_param_set_message(1, 1, b"RTL_RETURN_ALT", 8.0, M.MAV_PARAM_TYPE_REAL32))
@@ -62,7 +62,7 @@ def test_rtl_returns_home_and_lands(sim_start, sim_connect):
 @pytest.mark.flight
 def test_wind_pushes_but_the_controller_holds(sim_start, sim_connect):
     sim = sim_start(speedup=20.0, wind_m_s=(0.0, 5.0))
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _takeoff_offboard(c, sim, altitude_m=5.0)
     time.sleep(0.5)  # 10 s simulated hover
@@ -73,7 +73,7 @@ def test_wind_pushes_but_the_controller_holds(sim_start, sim_connect):
 
 def test_gps_noise_moves_reports_not_truth(sim_start, sim_connect):
     sim = sim_start(gps_noise_m=2.0, seed=7)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     time.sleep(1.0)
     xs = [m.x for m in c.of_type("LOCAL_POSITION_NED")]
@@ -88,7 +88,7 @@ def test_gps_noise_moves_reports_not_truth(sim_start, sim_connect):
 def test_sf_map_flight_keeps_up_with_speedup(sim_start, sim_connect):
     """3845 boxes: the per-step truth check must not slow the simulation down."""
     sim = sim_start(map_path=SF_MAP, speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _takeoff_offboard(c, sim, altitude_m=120.0)  # above the tallest building (106 m)
     c.setpoint_local(150.0, 150.0, -120.0)

@@ -15,6 +15,7 @@ GUID_TIMEOUT continuation and PX4's offboard-loss failsafe. Differences that rem
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 import random
@@ -32,6 +33,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from sim import boot as sim_boot
 from sim import params as sim_params
 from sim import streams as sim_streams
 
@@ -282,13 +284,16 @@ def arducopter_sitl():
         connection = f"tcp:127.0.0.1:{5762 + 10 * n}"
         probe = Probe(connection)
         try:
-            assert probe.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 1e6).result == 0
+            streams = [M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT]
+            for msg_id in streams:
+                assert probe.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 2e5).result == 0
             probe.wait_for("LOCAL_POSITION_NED", timeout_s=60)  # the EKF uses GPS: ~41 s simulated
-            probe.stop_streams([M.MAVLINK_MSG_ID_LOCAL_POSITION_NED])  # intervals outlive the TCP connection
+            probe.stop_streams(streams)  # intervals outlive the TCP connection
             _wait_armable(probe, lambda p: p.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]))
+            boot = _boot_times(probe)
         finally:
             probe.close()
-        yield connection
+        yield Sitl(connection, boot)
     finally:
         _stop(proc)
         shutil.rmtree(run, ignore_errors=True)
@@ -319,12 +324,30 @@ def px4_sitl():
         probe = Probe(connection)
         try:
             _wait_armable(probe, lambda p: p.command(M.MAV_CMD_DO_SET_MODE, 1, 4, 3))
+            boot = _boot_times(probe)
         finally:
             probe.close()
-        yield connection
+        yield Sitl(connection, boot)
     finally:
         _stop(proc)
         shutil.rmtree(run, ignore_errors=True)
+
+
+@dataclasses.dataclass
+class Sitl:
+    """A running SITL: where to connect, and when (its own clock, s) its boot produced what."""
+
+    connection: str
+    boot: dict
+
+
+def _boot_times(probe: Probe) -> dict:
+    """First GPS position, home and local position in the autopilot's own clock (s since boot)."""
+    gpi = [m.time_boot_ms / 1000 for m in probe.of_type("GLOBAL_POSITION_INT") if m.lat != 0]
+    lpn = [m.time_boot_ms / 1000 for m in probe.of_type("LOCAL_POSITION_NED")]
+    home = [m.time_usec / 1e6 for m in probe.of_type("HOME_POSITION")]
+    return {"global_position_s": min(gpi, default=None), "home_s": min(home, default=None),
+            "local_position_s": min(lpn, default=None)}
 
 
 def _wait_armable(probe: Probe, select_mode, timeout_s: float = 60.0) -> None:
@@ -420,8 +443,17 @@ def clock_s(probe: Probe, since: int = 0) -> float:
 
 
 # ---------------------------------------------------------------------------------------------- ArduCopter
+def test_arducopter_boot_follows_the_sims_arducopter_preset(arducopter_sitl):
+    """The boot this module's SITL just went through, against the sim's ``arducopter`` preset (+-20 %)."""
+    preset = sim_boot.PRESETS["arducopter"]
+    real = arducopter_sitl.boot
+    assert real["home_s"] == pytest.approx(preset.home_s, rel=0.2)
+    assert real["local_position_s"] == pytest.approx(preset.local_position_s, rel=0.2)
+    assert real["global_position_s"] == pytest.approx(preset.gps_fix_s, rel=0.2)
+
+
 def test_arducopter_streams_the_same_on_a_fresh_link(arducopter_sitl, sim_probe):
-    with probing(arducopter_sitl) as real:
+    with probing(arducopter_sitl.connection) as real:
         real_kinds = streamed_unasked(real, 3.0)
     sim_kinds = streamed_unasked(sim_probe(autopilot="ardupilot"), 3.0)
     ignore = {"TIMESYNC", "PARAM_VALUE", "STATUSTEXT"}  # KNOWN_DIFFERENCES
@@ -433,7 +465,7 @@ def test_arducopter_result_codes_mode_numbers_and_params(arducopter_sitl, sim_pr
     modes = {name: (1, ACM[name]) for name in ("GUIDED", "LOITER", "LAND", "RTL", "ALT_HOLD", "POSHOLD", "BRAKE",
                                                "STABILIZE")}
     names = list(sim_params.ARDUPILOT_PARAMS)
-    with probing(arducopter_sitl) as real:
+    with probing(arducopter_sitl.connection) as real:
         real_results = command_results(real, ARDU_COMMANDS)
         real_modes = mode_flags(real, modes)
         real_params = param_fingerprint(real, names)
@@ -469,7 +501,7 @@ def test_arducopter_auto_disarm_and_guided_arming_without_setpoints(arducopter_s
         probe.stop_streams([M.MAVLINK_MSG_ID_SYSTEM_TIME])
         return ack.result, [t for t in probe.texts(since) if "motors" in t], round(held)
 
-    with probing(arducopter_sitl) as real:
+    with probing(arducopter_sitl.connection) as real:
         expected = run(real)
     assert run(sim_probe(autopilot="ardupilot")) == expected
     assert expected == (M.MAV_RESULT_ACCEPTED, ["Arming motors", "Disarming motors"], 10)
@@ -507,7 +539,7 @@ def test_arducopter_takeoff_guid_timeout_gcs_loss_and_landing(arducopter_sitl, s
         probe.stop_streams([M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE])
         return round(end.x - lpn.x), after_silence, landed_states(probe, since)
 
-    with probing(arducopter_sitl) as real:
+    with probing(arducopter_sitl.connection) as real:
         expected = run(real)
     # What SITL did (16 m out on the last tangent; GUIDED and armed after the silence; the landed states).
     assert expected == (16, (ACM["GUIDED"], True), [M.MAV_LANDED_STATE_ON_GROUND, M.MAV_LANDED_STATE_TAKEOFF,
@@ -517,11 +549,20 @@ def test_arducopter_takeoff_guid_timeout_gcs_loss_and_landing(arducopter_sitl, s
 
 
 # ---------------------------------------------------------------------------------------------- PX4
+def test_px4_boot_follows_the_sims_fast_align_preset(px4_sitl):
+    """PX4 with PX4_EKF2_FAST_ALIGN: home and global position against the sim's ``px4-fast-align`` preset."""
+    preset = sim_boot.PRESETS["px4-fast-align"]
+    real = px4_sitl.boot
+    assert real["home_s"] == pytest.approx(preset.home_s, abs=1.0)
+    assert real["global_position_s"] == pytest.approx(preset.global_position_s, abs=1.5)
+    assert real["local_position_s"] < real["global_position_s"]
+
+
 PX4_BUILT = {M.mavlink_map[msg_id].msgname for msg_id in sim_streams.PX4_ONBOARD_RATES_HZ}
 
 
 def test_px4_streams_the_same_on_the_api_link(px4_sitl, sim_probe):
-    with probing(px4_sitl) as real:
+    with probing(px4_sitl.connection) as real:
         real_kinds = streamed_unasked(real, 3.0)
     sim_kinds = streamed_unasked(sim_probe(), 3.0)
     # The sim builds a subset of PX4's stream list (KNOWN_DIFFERENCES): compare on what it builds; the 0.5 Hz
@@ -535,7 +576,7 @@ def test_px4_result_codes_mode_numbers_and_params(px4_sitl, sim_probe):
     modes = {"LOITER": (1, 4, 3), "POSCTL": (1, 3, 0), "OFFBOARD": (1, 6, 0), "LAND": (1, 4, 6), "RTL": (1, 4, 5),
              "TAKEOFF": (1, 4, 2)}
     names = list(sim_params.PX4_PARAMS)
-    with probing(px4_sitl) as real:
+    with probing(px4_sitl.connection) as real:
         real_results = command_results(real, PX4_COMMANDS)
         real_modes = mode_flags(real, modes)
         real_params = param_fingerprint(real, names)
@@ -589,7 +630,7 @@ def test_px4_offboard_flight_loss_failsafe_landing_and_mode_after_disarm(px4_sit
         return (failsafe_mode, landed_states(probe, since), mavutil.interpret_px4_mode(hb.base_mode, hb.custom_mode),
                 list(dict.fromkeys(texts)))
 
-    with probing(px4_sitl) as real:
+    with probing(px4_sitl.connection) as real:
         expected = run(real, 1.0)  # PX4 SITL runs in real time
     assert expected[0] == "POSCTL" and expected[2] == "OFFBOARD"  # what PX4 did: COM_OBL_RC_ACT 0; back to OFFBOARD
     assert run(sim_probe(strict=True, speedup=4.0), 4.0) == expected

@@ -34,6 +34,7 @@ from .params import ParamTable
 from .report import Collision, FlightRecorder
 from .setpoints import global_int_target, local_ned_target
 from .streams import StreamScheduler
+from .tasks import TaskControl
 from .world import CityMap
 
 log = logging.getLogger(__name__)
@@ -43,7 +44,7 @@ NAN = math.nan
 _PX4_PREVENTS_ARMING = {"LAND", "RTL"}
 
 
-class Autopilot(CommandHandlers):
+class Autopilot(CommandHandlers, TaskControl):
     """Mock PX4/ArduCopter flight stack around a :class:`PointMassQuad`.
 
     Parameters
@@ -320,54 +321,6 @@ class Autopilot(CommandHandlers):
             self.send(None, p.value_message(msg.param_id, named=True))
 
     # ------------------------------------------------------------------ physics step
-    def _guided_target(self) -> ControlTarget:
-        """ArduCopter GUIDED: a velocity (feed-forward) moves the target along for GUID_TIMEOUT, then it stops."""
-        sp = self.setpoint
-        age = self.sim_time_s - self.setpoint_s
-        horizon = max(0.0, self.params["GUID_TIMEOUT"])
-        moving = age < horizon
-        pos, vel = list(sp.position_neu), list(sp.velocity_neu)
-        for axis in range(3):
-            if math.isfinite(vel[axis]):
-                if math.isfinite(pos[axis]):
-                    pos[axis] += vel[axis] * min(age, horizon)
-                vel[axis] = vel[axis] if moving else 0.0
-        return ControlTarget(tuple(pos), tuple(vel), sp.yaw_rad, sp.yaw_rate_rad_s, sp.max_horizontal_speed_m_s,
-                             sp.max_descent_m_s)
-
-    def control_target(self) -> ControlTarget:
-        """Controller target for the current task (map frame)."""
-        task, pos = self.task, self.position_neu
-        speed = self.speed_limit_m_s
-        if task.kind == Behaviour.OFFBOARD:
-            if self.following and self.setpoint is not None and (self.is_px4 or self.airborne):
-                sp = self.setpoint if self.is_px4 else self._guided_target()
-                if math.isfinite(speed):
-                    sp = ControlTarget(sp.position_neu, sp.velocity_neu, sp.yaw_rad, sp.yaw_rate_rad_s, speed,
-                                       sp.max_descent_m_s)
-                return sp
-            return ControlTarget(tuple(task.position_neu), max_horizontal_speed_m_s=speed)
-        if task.kind in (Behaviour.HOLD, Behaviour.TAKEOFF):
-            return ControlTarget(tuple(task.position_neu), max_horizontal_speed_m_s=speed)
-        land = self._land_speed()
-        if task.kind in (Behaviour.LAND, Behaviour.DESCEND):
-            n, e = task.position_neu[:2]
-            if not self.airborne and task.kind == Behaviour.DESCEND:
-                return ControlTarget(tuple(pos))
-            return ControlTarget((n, e, NAN), (NAN, NAN, -land), max_horizontal_speed_m_s=speed,
-                                 max_descent_m_s=land)
-        # RTL
-        home = self.home_neu if self.home_neu is not None else self.boot_neu
-        rtl_height = self.params["RTL_RETURN_ALT"] if self.is_px4 else self.params["RTL_ALT"] / 100.0
-        rtl_up = max(home[2] + rtl_height, task.position_neu[2])
-        if task.phase == 0:
-            if not self.airborne:
-                return ControlTarget(tuple(pos))
-            return ControlTarget((task.position_neu[0], task.position_neu[1], rtl_up))
-        if task.phase == 1:
-            return ControlTarget((home[0], home[1], rtl_up), max_horizontal_speed_m_s=speed)
-        return ControlTarget((home[0], home[1], NAN), (NAN, NAN, -land), max_descent_m_s=land)
-
     def step(self, dt_s: float) -> None:
         """Advance the vehicle by one physics step of ``dt_s`` simulated seconds."""
         self._boot_events()
@@ -402,25 +355,6 @@ class Autopilot(CommandHandlers):
         self.failsafes.step()
         home_up = self.home_neu[2] if self.home_neu is not None else self.boot_neu[2]
         self.recorder.update(dt_s, s.position_neu, self.armed, self.airborne, home_up)
-
-    def _advance_task(self) -> None:
-        task, pos = self.task, self.position_neu
-        if task.kind == Behaviour.TAKEOFF and self.airborne and abs(pos[2] - task.position_neu[2]) < 0.1:
-            home_up = self.home_neu[2] if self.home_neu is not None else 0.0
-            self.emit("takeoff", f"takeoff complete at {pos[2] - home_up:.1f} m above home")
-            if self.is_px4:
-                self.enter_mode(self.personality.mode_for(Behaviour.HOLD), Task(Behaviour.HOLD, task.position_neu))
-            elif self.mode.behaviour == Behaviour.OFFBOARD:
-                self.task = Task(Behaviour.OFFBOARD, task.position_neu.copy())
-                self.following = False
-            else:
-                self.task = Task(Behaviour.HOLD, task.position_neu.copy())
-        elif task.kind == Behaviour.RTL and self.airborne:
-            rtl_target = self.control_target().position_neu
-            if task.phase == 0 and pos[2] >= rtl_target[2] - 0.3:
-                task.phase = 1
-            elif task.phase == 1 and math.hypot(*(pos[:2] - self.control_target().position_neu[:2])) < 0.5:
-                task.phase = 2
 
     def _crash(self, hit: Collision | None, why: str) -> None:
         s = self.quad.state

@@ -22,7 +22,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from . import telemetry as tm
-from .arming import GroundLogic, readiness_reason
+from .arming import GroundLogic, arm_refusal, readiness_reason
 from .boot import resolve_boot
 from .commands import CommandHandlers, LinkState
 from .config import START_MARGIN_M, SimConfig
@@ -375,9 +375,13 @@ class Autopilot(CommandHandlers, TaskControl):
 
     # ------------------------------------------------------------------ telemetry
     def system_status(self) -> int:
+        """HEARTBEAT system_status. PX4 reports UNINIT while disarmed and not armable (measured: during boot, and
+        in a mode it cannot arm in), STANDBY once it could arm; ArduCopter STANDBY on the ground, ACTIVE in flight."""
         if self.crashed:
             return M.MAV_STATE_EMERGENCY
         if not self.armed:
+            if self.is_px4 and arm_refusal(self, force=False) is not None:
+                return M.MAV_STATE_UNINIT
             return M.MAV_STATE_STANDBY
         if self.is_px4:
             return M.MAV_STATE_ACTIVE

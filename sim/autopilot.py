@@ -82,10 +82,10 @@ class Autopilot(CommandHandlers, TaskControl):
         self.origin_set = False
         self.home_neu: np.ndarray | None = None
         self.quad = PointMassQuad(Limits(), self.boot_neu)
-        self._apply_params()
         self.armed = False
         self.crashed = False
         self.mode: Mode = self.personality.boot_mode
+        self._apply_params()
         self.mode_after_disarm: Mode = self.mode  # PX4: the last user mode that does not prevent arming
         self.task = Task(Behaviour.HOLD, self.boot_neu.copy())
         self.setpoint: ControlTarget | None = None
@@ -116,14 +116,16 @@ class Autopilot(CommandHandlers, TaskControl):
         return not self.quad.state.on_ground
 
     def setpoint_fresh(self) -> bool:
-        """A setpoint arrived within COM_OF_LOSS_T (PX4's offboard signal, simulated time)."""
-        return self.sim_time_s - self.setpoint_s <= self.params["COM_OF_LOSS_T"] + 1e-9
+        """A setpoint arrived within COM_OF_LOSS_T (PX4's offboard signal, simulated time; 1 s for ArduPilot)."""
+        timeout = self.params["COM_OF_LOSS_T"] if "COM_OF_LOSS_T" in self.params else 1.0
+        return self.sim_time_s - self.setpoint_s <= timeout + 1e-9
 
     def _apply_params(self) -> None:
         lim, p = self.quad.limits, self.params
         if self.is_px4:
             lim.max_horizontal_speed_m_s = p["MPC_XY_VEL_MAX"]
-            lim.max_horizontal_accel_m_s2 = p["MPC_ACC_HOR"]
+            lim.max_horizontal_accel_m_s2 = p["MPC_ACC_HOR_MAX" if self.mode.behaviour == Behaviour.OFFBOARD
+                                              else "MPC_ACC_HOR"]
             lim.max_climb_m_s = p["MPC_Z_VEL_MAX_UP"]
             lim.max_descent_m_s = p["MPC_Z_VEL_MAX_DN"]
         else:
@@ -177,6 +179,7 @@ class Autopilot(CommandHandlers, TaskControl):
             self.following = self.setpoint_fresh() if self.is_px4 else False
         changed = mode != self.mode
         self.mode, self.task = mode, task
+        self._apply_params()  # PX4's acceleration limit depends on the mode
         if user and mode.name not in _PX4_PREVENTS_ARMING:
             self.mode_after_disarm = mode
         if changed:

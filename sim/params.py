@@ -52,7 +52,9 @@ PX4_PARAMS: dict[str, ParamSpec] = {
     "COM_DISARM_PRFLT": ParamSpec(10.0, REAL32, "armed without taking off for this long (s) -> disarm (<= 0: off)"),
     "COM_DISARM_LAND": ParamSpec(2.0, REAL32, "landed for this long (s) -> disarm (< 0: off)"),
     "MPC_XY_VEL_MAX": ParamSpec(12.0, REAL32, "max horizontal speed (m/s)"),
-    "MPC_ACC_HOR": ParamSpec(3.0, REAL32, "max horizontal acceleration (m/s^2)"),
+    "MPC_ACC_HOR": ParamSpec(3.0, REAL32, "max horizontal acceleration in Hold, takeoff, land, return (m/s^2)"),
+    "MPC_ACC_HOR_MAX": ParamSpec(5.0, REAL32, "max horizontal acceleration in OFFBOARD (m/s^2; SITL: a 40 m step "
+                                              "reached ~5-7 m/s^2, not MPC_ACC_HOR)"),
     "MPC_Z_VEL_MAX_UP": ParamSpec(3.0, REAL32, "max climb rate (m/s)"),
     "MPC_Z_VEL_MAX_DN": ParamSpec(1.5, REAL32, "max descent rate (m/s)"),
     "MPC_LAND_SPEED": ParamSpec(0.7, REAL32, "landing descent rate (m/s)"),
@@ -67,7 +69,8 @@ ARDUPILOT_PARAMS: dict[str, ParamSpec] = {
     "GUID_TIMEOUT": ParamSpec(3.0, REAL32, "GUIDED: a velocity target is followed for this long (s) after the "
                                            "last setpoint, then the vehicle stops"),
     "WPNAV_SPEED": ParamSpec(1000.0, REAL32, "max horizontal speed (cm/s)"),
-    "WPNAV_ACCEL": ParamSpec(250.0, REAL32, "max horizontal acceleration (cm/s^2)"),
+    "WPNAV_ACCEL": ParamSpec(250.0, REAL32, "max horizontal acceleration, GUIDED included (cm/s^2; SITL: a 40 m "
+                                            "step peaked at ~2.6 m/s^2)"),
     "WPNAV_SPEED_UP": ParamSpec(250.0, REAL32, "max climb rate (cm/s)"),
     "WPNAV_SPEED_DN": ParamSpec(150.0, REAL32, "max descent rate (cm/s)"),
     "LAND_SPEED": ParamSpec(50, INT16, "landing descent rate (cm/s)"),

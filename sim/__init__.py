@@ -108,7 +108,8 @@ subset of PX4's streams and of ArduCopter's REQUEST_DATA_STREAM groups; no EVENT
 EVENT in any dialect); no TIMESYNC/PING requests from the vehicle; parameter tables hold only what the sim
 models; no motor spool-up before an ArduCopter takeoff; manual modes without RC hold position on ArduCopter
 (SITL sinks or falls); modes the sim cannot fly (missions, follow-me, circle) are refused; the sim is always
-system 1; stream rates belong to a TCP connection (ArduPilot keeps them per serial port).
+system 1; stream rates belong to a TCP connection (ArduPilot keeps them per serial port); every PX4 link streams
+the onboard/API link's set (PX4's GCS link streams more, faster).
 
 Truth and report
 ----------------

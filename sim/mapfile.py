@@ -29,6 +29,8 @@ HEADER = ("posx", "posy", "posz", "halfsizex", "halfsizey", "halfsizez")
 MAX_HORIZONTAL_M = 25_000.0
 #: ... and this far above or below the map datum (m).
 MAX_VERTICAL_M = 10_000.0
+#: Larger files are refused before reading (a 256 MiB map would hold millions of boxes; /dev/zero never ends).
+MAX_FILE_BYTES = 256 * 1024 * 1024
 _HOME_RE = re.compile(r"^\s*lat0\s+(?P<lat>[-+0-9.eE]+)\s*,\s*lon0\s+(?P<lon>[-+0-9.eE]+)\s*$")
 _EXCERPT_CHARS = 40
 
@@ -68,7 +70,12 @@ def read_colliders(path: str | Path) -> tuple[float, float, np.ndarray]:
         If the file cannot be read.
     """
     path = Path(path)
-    data = path.read_bytes()
+    if not path.is_file():
+        raise MapFormatError(path, 1, "not a regular file")
+    if path.stat().st_size > MAX_FILE_BYTES:
+        raise MapFormatError(path, 1, f"larger than {MAX_FILE_BYTES // 2**20} MiB")
+    with path.open("rb") as f:
+        data = f.read(MAX_FILE_BYTES + 1)
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

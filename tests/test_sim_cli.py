@@ -99,7 +99,8 @@ GOOD_HEAD = "lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSize
         (["--autopilot", "betaflight"], "--autopilot: invalid choice"),
         (["--report", "/nonexistent/dir/r.json"], "is not a directory"),
         (["--map", "{bad_map}"], "bad.csv:1: expected 'lat0 <deg>, lon0 <deg>', found 'not a map'"),
-        (["--map", "."], "cannot read map"),
+        (["--map", "."], ":1: not a regular file"),
+        (["--map", "/dev/zero"], "/dev/zero:1: not a regular file"),
         (["--map", "{garbled_map}"], "garbled.csv:3: not a number: 'x'"),
     ],
 )

@@ -75,6 +75,10 @@ KNOWN_DIFFERENCES = {
         ("ATTITUDE rate", "PX4 streams 100 Hz; the sim at most once per 20 ms physics step"),
         ("param_count", "the sim's table has the parameters it models, not PX4's ~900"),
         ("system id", "PX4 SITL instance N is system N+1; the sim is always system 1"),
+        ("GCS link", "every sim link streams the onboard/API link's set; PX4's GCS link (UDP 14550) streams "
+                     "LOCAL_POSITION_NED, GLOBAL_POSITION_INT, ATTITUDE at 50 Hz and RC_CHANNELS etc."),
+        ("commands to another system", "PX4 answers a COMMAND_LONG for another system id with FAILED; the sim "
+                                       "ignores it (ArduPilot's routing)"),
     ],
 }
 

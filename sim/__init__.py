@@ -128,7 +128,8 @@ touchdown), ``armed_time_s``, ``airborne_time_s``, ``distance_flown_m``, ``max_a
 ``clearance_search_cap_m`` = 50), ``min_clearance_at``, ``crashed``, ``collisions`` (``sim_time_s``,
 ``speed_m_s``, place, ``box``), ``commands`` (every COMMAND_LONG/COMMAND_INT/SET_MODE: ``sim_time_s``,
 ``link``, ``source``, ``command``, ``name``, ``params``, ``frame``, ``result``, ``result_name``,
-``reason``), ``setpoints_received``, ``last_setpoint_sim_time_s``, ``events`` (every status line:
+``reason``), ``setpoints_received``, ``last_setpoint_sim_time_s``, ``last_gcs_heartbeat_sim_time_s`` (the
+last HEARTBEAT that counts as the ground station's), ``events`` (every status line:
 ``sim_time_s``, ``kind``, ``text``), ``links`` (per TCP client: ``packets_in/out``, ``dropped_in/out``,
 ``rejected_signature``, ``junk_bytes``), ``signing`` (``enabled``, ``rejected_frames``).
 """

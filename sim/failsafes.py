@@ -60,6 +60,7 @@ class Failsafes:
         if not counts:
             return
         self.gcs_heartbeat_s = ap.sim_time_s
+        ap.recorder.last_gcs_heartbeat_sim_time_s = round(ap.sim_time_s, 3)
         if self.gcs_lost:
             self.gcs_lost = False
             text = "GCS connection regained\t" if ap.is_px4 else "GCS Failsafe Cleared"

@@ -123,7 +123,10 @@ class SimClient:
 
         def run() -> None:
             while not stop.is_set():
-                self.send(mavlink.MAVLink_heartbeat_message(mav_type, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+                try:
+                    self.send(mavlink.MAVLink_heartbeat_message(mav_type, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+                except OSError:  # the socket closed under us
+                    return
                 stop.wait(1.0 / hz)
 
         threading.Thread(target=run, daemon=True).start()

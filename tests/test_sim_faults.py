@@ -63,7 +63,7 @@ def test_latency_is_in_simulated_milliseconds(sim_start, sim_connect, speedup):
     expected = 0.6 / speedup
     # Never faster than the latency, less the 20 ms physics step each way that quantises simulated time.
     assert all(r is not None and r >= (0.6 - 0.04) / speedup - 0.005 for r in rtts), rtts
-    assert sorted(rtts)[1] < expected + 0.1, rtts  # and (most of the time) not much slower
+    assert sorted(rtts)[1] < expected + 0.3, rtts  # and (most of the time) not much slower
 
 
 @pytest.mark.parametrize("speedup", [3.0, 10.0])

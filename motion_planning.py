@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 
 from skyroute.cli.exits import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NO_PATH, EXIT_OK, UserError
-from skyroute.cli.main import DEFAULT_MAP, build_parser, main, run
+from skyroute.cli.main import DEFAULT_MAP, build_parser, console_main, main, run
 from skyroute.planning import PLANNERS
 
 __all__ = [
@@ -23,4 +23,4 @@ __all__ = [
 ]
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(console_main())

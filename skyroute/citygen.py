@@ -5,6 +5,12 @@ The project's own map (``colliders.csv`` at the repository root) is produced by 
 ``python -m skyroute.citygen --size-m 5000 -o city5k.csv`` for a
 larger city to benchmark with.
 
+The project's map (:func:`generate_bundled_city`) covers the extent of the classic exercise's San Francisco map
+around the same home (north -315..605 m, east -444..476 m), so goals from the exercise are on it: the 900 m city
+of seed 2 (the original bundled map, kept box for box, since tests and the README fly to goals on it), a 20 m
+ring road round it, and beyond the ring the blocks of a second generated city (seed 102) out to north 620 m and
+east 490 m.
+
 Frame and units: every box is ``north_m, east_m, centre_alt_m, half_north_m, half_east_m, half_alt_m`` in the
 local NED-ish map frame whose origin is the home point ``lat0, lon0`` written on the file's first line. Boxes
 stand on the ground (``centre_alt_m == half_alt_m``). The city is a square of side ``size_m`` centred on the
@@ -30,6 +36,7 @@ True
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -37,6 +44,12 @@ import numpy as np
 
 DEFAULT_SEED = 2
 DEFAULT_SIZE_M = 900.0
+#: The bundled map's extent, (north min, north max), (east min, east max) in metres: the 900 m city's south and
+#: west edges, and a little past the SF map's north (604.8 m) and east (475.8 m) edges. A low bollard in the
+#: north-east corner makes the map's grid reach it.
+BUNDLED_EXTENT_M = ((-450.0, 620.0), (-450.0, 490.0))
+EXTENSION_SEED = 102
+RING_ROAD_M = 20.0
 DEFAULT_LAT0_DEG = 37.792480
 DEFAULT_LON0_DEG = -122.397450
 HEADER_COLUMNS = "posX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ"
@@ -260,6 +273,40 @@ def generate_city(
     return np.round(np.vstack([buildings, trees]), 1) + 0.0  # + 0.0 turns -0.0 into 0.0
 
 
+def extend_city(
+    core: np.ndarray, core_half_m: float, extent_m: tuple[tuple[float, float], tuple[float, float]], seed: int,
+    ring_m: float = RING_ROAD_M,
+) -> np.ndarray:
+    """Extend a square city ``core`` (side ``2 core_half_m`` round the origin) to a rectangular extent.
+
+    The boxes of ``core`` stay as they are; around it runs a ring road ``ring_m`` wide; beyond the ring come the
+    boxes of another generated city (``seed``) that lie wholly inside ``extent_m`` ((north min, north max),
+    (east min, east max), metres) and clear of the ring. Rows are the core's, then the new ones.
+
+    >>> core = generate_city(size_m=300.0, seed=1)
+    >>> city = extend_city(core, 150.0, ((-150.0, 400.0), (-150.0, 150.0)), seed=7)
+    >>> bool(np.array_equal(city[: len(core)], core)), bool((city[len(core):, 0] - city[len(core):, 3] >= 170).all())
+    (True, True)
+    """
+    (n_min, n_max), (e_min, e_max) = extent_m
+    reach = max(abs(n_min), abs(n_max), abs(e_min), abs(e_max))
+    outer = generate_city(size_m=2.0 * math.ceil(reach), seed=seed)
+    lo, hi = outer[:, :2] - outer[:, 3:5], outer[:, :2] + outer[:, 3:5]
+    inside = (lo[:, 0] >= n_min) & (hi[:, 0] <= n_max) & (lo[:, 1] >= e_min) & (hi[:, 1] <= e_max)
+    edge = core_half_m + ring_m
+    beyond_ring = (lo[:, 0] >= edge) | (hi[:, 0] <= -edge) | (lo[:, 1] >= edge) | (hi[:, 1] <= -edge)
+    return np.vstack([core, outer[inside & beyond_ring]])
+
+
+def generate_bundled_city() -> np.ndarray:
+    """The project's map: the 900 m city of seed 2 extended to :data:`BUNDLED_EXTENT_M` (see the module notes)."""
+    core = generate_city(DEFAULT_SIZE_M, DEFAULT_SEED)
+    city = extend_city(core, DEFAULT_SIZE_M / 2.0, BUNDLED_EXTENT_M, EXTENSION_SEED)
+    (_, n_max), (_, e_max) = BUNDLED_EXTENT_M
+    bollard = [n_max - 0.5, e_max - 0.5, 0.5, 0.5, 0.5, 0.5]  # 1 m tall, 1 m square
+    return np.vstack([city, [bollard]])
+
+
 def write_colliders(
     path: str | Path, obstacles: np.ndarray, lat0_deg: float = DEFAULT_LAT0_DEG, lon0_deg: float = DEFAULT_LON0_DEG
 ) -> None:
@@ -288,11 +335,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m skyroute.citygen",
         description="Generate a deterministic city map in the colliders.csv format. "
-        "With no arguments it regenerates the project's colliders.csv.",
+        "With no --size-m it regenerates the project's colliders.csv (the 900 m city of seed 2, extended to the "
+        "SF map's extent).",
     )
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED, help="random seed (default: %(default)s)")
     parser.add_argument(
-        "--size-m", type=float, default=DEFAULT_SIZE_M, help="side of the square city in metres (default: %(default)s)"
+        "--size-m", type=float, help="side of a square city in metres (default: the project's map)"
     )
     parser.add_argument("-o", "--output", default="colliders.csv", help="output file (default: %(default)s)")
     parser.add_argument(
@@ -302,13 +350,18 @@ def main(argv: list[str] | None = None) -> int:
         "--lon0", type=float, default=DEFAULT_LON0_DEG, help="home longitude, deg (default: %(default)s)"
     )
     args = parser.parse_args(argv)
-    try:
-        city = generate_city(size_m=args.size_m, seed=args.seed, lat0_deg=args.lat0, lon0_deg=args.lon0)
-    except ValueError as err:
-        print(f"citygen: error: {err}", file=sys.stderr)
-        return 2
+    if args.size_m is None and args.seed == DEFAULT_SEED:
+        city, what = generate_bundled_city(), "the project's map"
+    else:
+        size_m = DEFAULT_SIZE_M if args.size_m is None else args.size_m
+        try:
+            city = generate_city(size_m=size_m, seed=args.seed, lat0_deg=args.lat0, lon0_deg=args.lon0)
+        except ValueError as err:
+            print(f"citygen: error: {err}", file=sys.stderr)
+            return 2
+        what = f"{size_m:g} m square, seed {args.seed}"
     write_colliders(args.output, city, args.lat0, args.lon0)
-    print(f"wrote {city.shape[0]} boxes ({args.size_m:g} m square, seed {args.seed}) to {args.output}")
+    print(f"wrote {city.shape[0]} boxes ({what}) to {args.output}")
     return 0
 
 

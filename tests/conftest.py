@@ -1,4 +1,4 @@
-"""Shared fixtures for the sim/ tests (all prefixed ``sim_``)."""
+"""Shared fixtures: the sim fixtures (all prefixed ``sim_``) and what every test needs."""
 
 from __future__ import annotations
 
@@ -11,6 +11,18 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from sim import FaultConfig, SimConfig, Simulator, write_colliders
+
+
+@pytest.fixture(autouse=True)
+def _no_compile_notice_in_process(request, monkeypatch):
+    """In-process CLI tests check stderr line by line, and which of them happens to compile a kernel first (and so
+    prints the first-run 'compiling' notice) depends on the test order; the notice has tests of its own
+    (marked ``compile_notice``, and a subprocess run with a fresh cache)."""
+    if request.node.get_closest_marker("compile_notice") is None:
+        import skyroute.cli.main
+
+        monkeypatch.setattr(skyroute.cli.main, "announce_first_compile", lambda enabled=True: None)
+
 
 #: One building: north 25..35 m, east -5..5 m, up 0..20 m (centre 30,0,10; half sizes 5,5,10).
 SIM_BUILDING = (30.0, 0.0, 10.0, 5.0, 5.0, 10.0)

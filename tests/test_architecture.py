@@ -86,6 +86,7 @@ def test_the_vehicle_link_knows_nothing_of_planning_or_missions():
 @pytest.mark.parametrize(("dependency", "owners"), [
     ("pymavlink", ("skyroute.vehicle",)),
     ("matplotlib", ("skyroute.view.plotting",)),
+    ("aiohttp", ("skyroute.view.live",)),
     ("numba", ("skyroute.planning.kernels", "skyroute.planning.any_angle", "skyroute.planning.grid3d")),
     ("networkx", ("skyroute.planning.graphs", "skyroute.planning.sampling")),
     ("skimage", ("skyroute.planning.graphs",)),

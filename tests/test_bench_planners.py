@@ -44,3 +44,25 @@ def test_clearance_is_the_distance_to_the_nearest_box_surface():
     assert bench.min_clearance_m(leg, box) == pytest.approx(3.0)
     over = np.array([[0.0, 0.0, 12.0], [0.0, 0.0, 20.0]])  # 2 m above its top
     assert bench.min_clearance_m(over, box) == pytest.approx(2.0)
+
+
+def test_the_bench_extra_would_not_downgrade_numpy():
+    # `pip install ".[bench]"` must keep the runtime's numpy 2: no bench requirement may pin numpy below 2.
+    from importlib import metadata
+
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+
+    from packaging.requirements import Requirement
+
+    project = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]
+    for line in project["optional-dependencies"]["bench"]:
+        name = Requirement(line).name
+        assert name != "extremitypathfinder", "its metadata pins numpy<2; install it with --no-deps instead"
+        try:
+            requires = metadata.requires(name) or []
+        except metadata.PackageNotFoundError:
+            continue
+        for dependency in map(Requirement, requires):
+            applies = dependency.marker is None or dependency.marker.evaluate({"extra": ""})
+            if dependency.name == "numpy" and applies:
+                assert dependency.specifier.contains("2.4.0", prereleases=True), f"{name} pins {dependency}"

@@ -25,21 +25,24 @@ def read(path):
     return np.loadtxt(path, delimiter=",", dtype=np.float64, skiprows=2, ndmin=2)
 
 
-def free_at_ground(city, half_extent_m, safety_m, altitude_m=5.0):
-    """1 m occupancy, True = free, cell (i, j) covers north [i - h, i - h + 1), east [j - h, j - h + 1)."""
-    size = int(2 * half_extent_m)
+def free_at_ground(city, half_extent_m, safety_m, altitude_m=5.0, extent=None):
+    """1 m occupancy, True = free, cell (i, j) covers north [n0 + i, n0 + i + 1), east [e0 + j, e0 + j + 1) with
+    (n0, e0) = (-h, -h), or ``extent`` = ((n0, n1), (e0, e1)). Boxes grown by the margin as squares (simpler than
+    the planner's rounded margin and stricter, which is what a "streets connect" check wants)."""
+    (n0, n1), (e0, e1) = extent or ((-half_extent_m, half_extent_m), (-half_extent_m, half_extent_m))
+    rows, cols = int(n1 - n0), int(e1 - e0)
     tall = city[city[:, 2] + city[:, 5] + safety_m > altitude_m]
-    lo_n = np.clip(np.floor(tall[:, 0] - tall[:, 3] - safety_m + half_extent_m), 0, size).astype(int)
-    hi_n = np.clip(np.ceil(tall[:, 0] + tall[:, 3] + safety_m + half_extent_m), 0, size).astype(int)
-    lo_e = np.clip(np.floor(tall[:, 1] - tall[:, 4] - safety_m + half_extent_m), 0, size).astype(int)
-    hi_e = np.clip(np.ceil(tall[:, 1] + tall[:, 4] + safety_m + half_extent_m), 0, size).astype(int)
+    lo_n = np.clip(np.floor(tall[:, 0] - tall[:, 3] - safety_m - n0), 0, rows).astype(int)
+    hi_n = np.clip(np.ceil(tall[:, 0] + tall[:, 3] + safety_m - n0), 0, rows).astype(int)
+    lo_e = np.clip(np.floor(tall[:, 1] - tall[:, 4] - safety_m - e0), 0, cols).astype(int)
+    hi_e = np.clip(np.ceil(tall[:, 1] + tall[:, 4] + safety_m - e0), 0, cols).astype(int)
     # 2-D difference array: +1 at each box's lower corner, -1 past its upper corner; cumsum paints the boxes.
-    diff = np.zeros((size + 1, size + 1), dtype=np.int32)
+    diff = np.zeros((rows + 1, cols + 1), dtype=np.int32)
     np.add.at(diff, (lo_n, lo_e), 1)
     np.add.at(diff, (hi_n, lo_e), -1)
     np.add.at(diff, (lo_n, hi_e), -1)
     np.add.at(diff, (hi_n, hi_e), 1)
-    return diff.cumsum(0).cumsum(1)[:size, :size] == 0
+    return diff.cumsum(0).cumsum(1)[:rows, :cols] == 0
 
 
 def test_same_seed_same_city_other_seed_other_city():
@@ -134,12 +137,66 @@ def test_default_cli_reproduces_the_shipped_map_byte_for_byte(tmp_path):
     assert out.read_bytes() == SHIPPED.read_bytes()
 
 
+# The classic SF map's extent around home (metres; from its 3845 boxes): north -315.24..604.76, east
+# -444.23..475.77. Goals from the exercise's writeups lie in it.
+SF_EXTENT = ((-315.24, 604.77), (-444.24, 475.77))
+
+
+@pytest.fixture(scope="module")
+def bundled():
+    return citygen.generate_bundled_city()
+
+
+def test_the_bundled_map_keeps_the_900m_city_box_for_box(bundled, city):
+    assert np.array_equal(bundled[: len(city)], city)
+    assert np.array_equal(read(SHIPPED), bundled)
+
+
+def test_the_bundled_map_covers_the_sf_maps_extent(bundled):
+    lo = (bundled[:, :2] - bundled[:, 3:5]).min(axis=0)
+    hi = (bundled[:, :2] + bundled[:, 3:5]).max(axis=0)
+    (n0, n1), (e0, e1) = SF_EXTENT
+    assert lo[0] <= n0 and hi[0] >= n1 and lo[1] <= e0 and hi[1] >= e1
+    from skyroute import sfmap
+
+    if sfmap.local_copy() is not None:  # the constants above, checked against the real map when it is here
+        sf = read(sfmap.local_copy())
+        assert np.allclose((sf[:, :2] - sf[:, 3:5]).min(axis=0), [n0, e0], atol=0.01)
+        assert np.allclose((sf[:, :2] + sf[:, 3:5]).max(axis=0), [n1, e1], atol=0.01)
+
+
+def test_a_ring_road_separates_the_900m_city_from_the_extension(bundled, city):
+    added = bundled[len(city):]
+    lo, hi = added[:, :2] - added[:, 3:5], added[:, :2] + added[:, 3:5]
+    edge = 450.0 + citygen.RING_ROAD_M
+    assert ((lo[:, 0] >= edge) | (hi[:, 0] <= -edge) | (lo[:, 1] >= edge) | (hi[:, 1] <= -edge)).all()
+    assert len(added) > 500 and np.all(added[:, 2] == added[:, 5])
+
+
+def test_the_bundled_streets_connect_home_to_the_whole_map_at_5m_safety(bundled):
+    extent = ((-450.0, 620.0), (-450.0, 490.0))
+    free = free_at_ground(bundled, 0, safety_m=5.0, extent=extent)
+    labels, _ = ndimage.label(free, structure=np.ones((3, 3)))
+    home = labels[450, 450]
+    assert home != 0
+    rows, cols = np.nonzero(labels == home)
+    assert rows.min() < 30 and rows.max() > 1040 and cols.min() < 30 and cols.max() > 910
+
+
 def test_cli_help_shows_defaults(capsys):
     with pytest.raises(SystemExit) as exc:
         citygen.main(["--help"])
     assert exc.value.code == 0
     text = capsys.readouterr().out
-    assert f"default: {citygen.DEFAULT_SEED}" in text and "default: 900.0" in text
+    text = " ".join(text.split())
+    assert f"default: {citygen.DEFAULT_SEED}" in text and "default: the project's map" in text
+
+
+def test_cli_writes_a_square_city_when_given_a_size(tmp_path, capsys):
+    out = tmp_path / "c.csv"
+    assert citygen.main(["--size-m", "400", "--seed", "3", "-o", str(out)]) == 0
+    assert np.array_equal(read(out), citygen.generate_city(size_m=400.0, seed=3))
+    assert "400 m square, seed 3" in capsys.readouterr().out
 
 
 def test_cli_rejects_a_tiny_city(tmp_path, capsys):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +14,7 @@ import pytest
 
 from motion_planning import DEFAULT_MAP, EXIT_BAD_INPUT, EXIT_NO_PATH, main
 from planning_utils import create_grid, line_of_sight, read_colliders
+from skyroute import sfmap
 from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -216,3 +218,106 @@ def test_an_installed_script_without_a_map_beside_it_uses_the_working_directory(
     assert cli.default_map_path() == Path("colliders.csv")
     monkeypatch.setattr(cli, "__file__", str(ROOT / "skyroute" / "cli" / "main.py"))
     assert cli.default_map_path() == ROOT / "colliders.csv"
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The SF map, bad map files and options, progress lines
+
+
+SF_MAP = sfmap.local_copy()
+needs_sf = pytest.mark.skipif(SF_MAP is None, reason="no local copy of the SF map (python -m skyroute.sfmap)")
+
+
+@needs_sf
+def test_the_goal_a_square_margin_shut_in_a_pocket_plans_on_the_sf_map(capsys):
+    # Issue 10's case: with square-grown buildings this goal sat in a pocket (exit 3); an independent 0.5 m
+    # raster connects it with more than 6.5 m of clearance.
+    code = main(["--plan-only", "--json", "--start_lat", "37.79397782", "--start_lon", "-122.40056186",
+                 "--goal_lat", "37.79335444", "--goal_lon", "-122.39467596", "--alt", "5", "--safety", "5",
+                 "--map", str(SF_MAP)])
+    assert code == 0, capsys.readouterr().err
+    doc = json.loads(capsys.readouterr().out)
+    obstacles = read_colliders(SF_MAP).obstacles
+    tall = obstacles[obstacles[:, 2] + obstacles[:, 5] + 5 > 5]
+    for a, b in zip(np.array(doc["waypoints"])[:-1, :2], np.array(doc["waypoints"])[1:, :2]):
+        for point in a + np.linspace(0, 1, 50)[:, None] * (b - a):
+            gap = np.maximum(np.abs(point - tall[:, :2]) - tall[:, 3:5], 0)
+            assert np.hypot(gap[:, 0], gap[:, 1]).min() >= 5 - 1e-9
+
+
+@pytest.mark.parametrize("row, fragment", [
+    ("1e300,0,5,5,5,5", ":3: the box reaches 1e+300 m from home"),
+    ("0,0,5,1e9,5,5", ":3: the box reaches 1e+09 m from home"),
+    ("1e7,0,5,5,5,5", ":3: the box reaches 1e+07 m from home"),
+    ("0,0,inf,5,5,5", ":3: not a number: 'inf'"),
+])
+def test_maps_that_used_to_crash_or_hang_are_one_line_and_exit_2(tmp_path, capsys, row, fragment):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n" + row + "\n")
+    assert main(["--plan-only", "--map", str(bad), *latlon(1, 1)]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and fragment in err and "Traceback" not in err
+
+
+def test_a_missing_map_named_with_map_gets_no_hint_to_pass_map(tmp_path, capsys, monkeypatch):
+    assert main(["--plan-only", "--map", str(tmp_path / "nope.csv"), *latlon(1, 1)]) == EXIT_BAD_INPUT
+    assert "pass --map" not in capsys.readouterr().err
+    from skyroute.cli import main as cli
+
+    monkeypatch.setattr(cli, "DEFAULT_MAP", tmp_path / "colliders.csv")
+    assert main(["--plan-only", *latlon(1, 1)]) == EXIT_BAD_INPUT
+    assert "(pass --map FILE)" in capsys.readouterr().err
+
+
+def test_samples_must_be_a_sensible_count(walled_map, capsys):
+    assert main(["--plan-only", "--map", str(walled_map), "--planner", "prm", "--samples", "1",
+                 *latlon(35.3, 0.3)]) == EXIT_BAD_INPUT
+    assert "--samples must be >= 2" in capsys.readouterr().err
+
+
+def test_prm_whose_roadmap_cannot_reach_a_courtyard_plans_through_its_fallback(tmp_path, capsys):
+    # The courtyard's walls are 40 m tall, above the roadmap's 5-25 m band: the roadmap cannot get in, the complete
+    # grid3d search it falls back to climbs over (so the goal the grid planner cannot reach is reachable).
+    boxed = tmp_path / "boxed.csv"
+    boxed.write_text(
+        "lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+        "30,0,20,1,15,20\n0,0,20,1,15,20\n15,-14,20,15,1,20\n15,14,20,15,1,20\n-40,-40,1,1,1,1\n40,40,1,1,1,1\n"
+    )
+    start = ned_to_geodetic(LocalNED(-20.3, 0.3, 0), HOME)
+    code = main(["--plan-only", "--json", "--map", str(boxed), "--safety", "1", "--planner", "prm",
+                 *latlon(15.3, 0.3), "--start_lat", str(start.lat_deg), "--start_lon", str(start.lon_deg)])
+    assert code == 0, capsys.readouterr().err
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["stats"]["fallback"] == "grid3d" and max(w[2] for w in doc["waypoints"]) >= 41
+
+
+@pytest.mark.compile_notice
+def test_the_compile_notice_is_printed_unless_quiet(walled_map, capsys):
+    import numba
+
+    for quiet, expected in ((["-q"], ""), ([], "compiling the planner's kernels")):
+        assert main(["--plan-only", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3), *quiet]) == 0
+        capsys.readouterr()
+        numba.njit(lambda x: x + 1)(1)  # something that has to be compiled
+        assert expected in capsys.readouterr().err
+
+
+def test_the_kernels_compile_once_and_load_from_the_disk_cache_after(walled_map, tmp_path):
+    # A fresh cache directory: the first run compiles (and says so once), the second loads everything from disk.
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    args = [sys.executable, str(ROOT / "motion_planning.py"), "--plan-only", "--map", str(walled_map), "--safety",
+            "2", *latlon(35.3, 0.3)]
+    first = subprocess.run(args, capture_output=True, text=True, env=env, timeout=600)
+    second = subprocess.run(args, capture_output=True, text=True, env=env, timeout=600)
+    assert first.returncode == second.returncode == 0, first.stderr + second.stderr
+    assert first.stderr.count("compiling the planner's kernels") == 1
+    assert "compiling" not in second.stderr
+    assert second.stdout.splitlines()[:-1] == first.stdout.splitlines()[:-1]  # the same waypoints (not timings)
+
+
+def test_a_plan_only_grid_run_loads_no_graph_or_plotting_library():
+    code = ("import sys, runpy; sys.argv = ['motion_planning.py', '--plan-only', '-q', '--goal_lat', '37.789774', "
+            "'--goal_lon', '-122.393473']; import motion_planning; motion_planning.main(sys.argv[1:]); "
+            "print(sorted(m for m in ('scipy', 'skimage', 'networkx', 'matplotlib', 'pymavlink') if m in sys.modules))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
+    assert result.stdout.strip().splitlines()[-1] == "[]"

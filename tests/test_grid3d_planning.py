@@ -55,16 +55,63 @@ def test_height_map_blocks_exactly_the_cells_create_grid_blocks_at_every_altitud
         np.testing.assert_array_equal(floor > altitude, grid)
 
 
-def test_a_leg_touching_the_grown_box_is_clear_and_one_cutting_its_corner_is_not():
-    box = np.array([[0.0, 0.0, 5.0, 1.0, 1.0, 5.0]])  # 2 x 2 m, 10 m tall; a 1 m margin grows it to 4 x 4 x 11
-    along_the_face = np.array([[-5.0, 2.0, 5.0], [5.0, 2.0, 5.0]])
-    touching_the_corner = np.array([[-3.0, 1.0, 5.0], [-1.0, 3.0, 5.0]])  # meets the grown box only at (-2, 2)
-    across_the_corner = np.array([[-3.0, 0.5, 5.0], [-0.5, 3.0, 5.0]])  # passes (-1.75, 1.75), inside
-    over_the_top = np.array([[-5.0, 0.0, 11.0], [5.0, 0.0, 11.0]])
-    assert g3.legs_clear_of_boxes(along_the_face, box, 1.0).tolist() == [True]
-    assert g3.legs_clear_of_boxes(touching_the_corner, box, 1.0).tolist() == [True]
-    assert g3.legs_clear_of_boxes(across_the_corner, box, 1.0).tolist() == [False]
-    assert g3.legs_clear_of_boxes(over_the_top, box, 1.0).tolist() == [True]
+def test_a_leg_touching_the_rounded_margin_is_clear_and_one_cutting_its_corner_is_not():
+    # A 2 x 2 m box, 10 m tall, with a 5 m margin: its grown prism is the footprint plus 5 m, corners rounded,
+    # up to 15 m. The legs run in direction (16, 12) north/east past its south-east corner (north -1, east 1).
+    box = np.array([[0.0, 0.0, 5.0, 1.0, 1.0, 5.0]])
+    along_the_face = np.array([[-10.0, 6.0, 5.0], [10.0, 6.0, 5.0]])  # 5 m east of the east face
+    # Nearest the corner at its middle, (-4, 5): offsets (3, 4) from the corner, exactly 5 m.
+    tangent_to_the_corner = np.array([[-12.0, -1.0, 5.0], [4.0, 11.0, 5.0]])
+    # Nearest the corner at (-3.16, 3.88): 3.6 m from it.
+    across_the_corner = np.array([[-11.0, -2.0, 5.0], [5.0, 10.0, 5.0]])
+    # Through (-4.6, 5.8), 6 m from the corner: inside the square grown box (|n|, |e| <= 6), outside the rounded one.
+    round_the_corner = np.array([[-12.6, -0.2, 5.0], [3.4, 11.8, 5.0]])
+    over_the_top = np.array([[-10.0, 0.0, 15.0], [10.0, 0.0, 15.0]])
+    just_under_the_lid = np.array([[-10.0, 0.0, 14.9], [10.0, 0.0, 14.9]])
+    assert g3.legs_clear_of_boxes(along_the_face, box, 5.0).tolist() == [True]
+    assert g3.legs_clear_of_boxes(tangent_to_the_corner, box, 5.0).tolist() == [True]
+    assert g3.legs_clear_of_boxes(across_the_corner, box, 5.0).tolist() == [False]
+    assert g3.legs_clear_of_boxes(round_the_corner, box, 5.0).tolist() == [True]
+    assert g3.legs_clear_of_boxes(over_the_top, box, 5.0).tolist() == [True]
+    assert g3.legs_clear_of_boxes(just_under_the_lid, box, 5.0).tolist() == [False]
+
+
+def test_with_no_margin_only_the_box_interior_collides():
+    box = np.array([[0.0, 0.0, 5.0, 1.0, 1.0, 5.0]])
+    along_the_face = np.array([[-5.0, 1.0, 5.0], [5.0, 1.0, 5.0]])
+    through = np.array([[-5.0, 0.5, 5.0], [5.0, 0.5, 5.0]])
+    on_the_roof = np.array([[-5.0, 0.0, 10.0], [5.0, 0.0, 10.0]])
+    assert g3.legs_clear_of_boxes(np.vstack([along_the_face]), box, 0.0).tolist() == [True]
+    assert g3.legs_clear_of_boxes(through, box, 0.0).tolist() == [False]
+    assert g3.legs_clear_of_boxes(on_the_roof, box, 0.0).tolist() == [True]
+
+
+def exact_distance_to_box(point_ne: np.ndarray, box: np.ndarray) -> float:
+    """Horizontal distance from a point to a box's footprint, written out: zero inside."""
+    gap_n = max(box[0] - box[3] - point_ne[0], point_ne[0] - box[0] - box[3], 0.0)
+    gap_e = max(box[1] - box[4] - point_ne[1], point_ne[1] - box[1] - box[4], 0.0)
+    return math.hypot(gap_n, gap_e)
+
+
+@settings(max_examples=100, deadline=None, derandomize=True)
+@given(obstacles=random_boxes(max_count=4), safety_m=st.sampled_from([0.5, 2.0, 5.0]),
+       ends=st.lists(st.tuples(st.floats(-5, 45), st.floats(-5, 45), st.floats(0, 35)), min_size=2, max_size=2))
+def test_the_3d_rule_agrees_with_dense_samples_of_the_leg(obstacles, safety_m, ends):
+    # Sample the leg every 1 cm: a sample below a lid and closer than the margin to that box's footprint is a
+    # collision. The exact check must flag every such leg, and pass every leg whose samples all keep 2 cm more.
+    a, b = (np.array(e) for e in ends)
+    t = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(b - a) / 0.01)))
+    samples = a + t[:, None] * (b - a)
+    slack = []
+    for box in obstacles:
+        below = samples[:, 2] < box[2] + box[5] + safety_m
+        for p in samples[below]:
+            slack.append(exact_distance_to_box(p[:2], box) - safety_m)
+    clear = g3.legs_clear_of_boxes(np.array([a, b]), obstacles, safety_m)[0]
+    if slack and min(slack) < -0.02:
+        assert not clear
+    if not slack or min(slack) > 0.02:
+        assert clear
 
 
 @settings(max_examples=150, deadline=None, derandomize=True)
@@ -220,9 +267,19 @@ def test_prm_reaches_a_rooftop_above_its_sampled_band_by_a_vertical_and_a_level_
     assert g3.legs_clear_of_boxes(result.waypoints[:, :3], block, 1.0).all()
 
 
-def test_prm_with_too_few_samples_fails_to_connect_and_says_so():
+def test_prm_with_too_few_samples_misses_the_route_and_says_what_to_try():
     roadmap = sp.ProbabilisticRoadmap.build(CHICANE, 5, 1, seed=0, n_samples=2, altitude_span_m=0)
     queries = [(centre(3, 3), centre(37, 37))]
     assert sp.connection_rate(roadmap, queries) == 0.0
-    with pytest.raises(pu.NoPathError):
-        roadmap.plan(*queries[0])
+    with pytest.raises(sp.RoadmapNoPathError, match="try another seed or more samples"):
+        roadmap.plan(*queries[0], fallback=False)
+
+
+def test_prm_falls_back_to_the_complete_search_when_its_roadmap_misses():
+    roadmap = sp.ProbabilisticRoadmap.build(CHICANE, 5, 1, seed=0, n_samples=2, altitude_span_m=0)
+    result = roadmap.plan(centre(3, 3), centre(37, 37))
+    assert result.planner == "prm" and result.extra["fallback"] == "grid3d"
+    np.testing.assert_allclose(result.waypoints[[0, -1], :3], [[3.5, 3.5, 5.0], [37.5, 37.5, 5.0]])
+    assert gp.colliding_legs(result, CHICANE, 1) == []
+    direct = gp.plan("grid3d", CHICANE, centre(3, 3), centre(37, 37), 5, 1)
+    assert result.cost_m == pytest.approx(direct.cost_m)

@@ -18,6 +18,7 @@ from planning_utils import (
     heuristic,
     nearest_free_cell,
 )
+from skyroute.planning.search import python_a_star
 
 SQRT2 = math.sqrt(2)
 METHODS = ["jps", "astar"]
@@ -196,6 +197,91 @@ def test_nearest_free_cell_of_full_grid_is_none():
     assert nearest_free_cell(np.ones((5, 5), dtype=bool), (2, 2)) is None
 
 
+@pytest.mark.parametrize("seed", range(20))
+def test_a_custom_heuristic_runs_the_python_a_star_and_stays_optimal(seed):
+    rng = np.random.default_rng(500 + seed)
+    grid = random_grid(rng, shape=(25, 30), density=0.15 + 0.3 * rng.random(), blob=bool(seed % 2))
+    free = np.argwhere(~grid)
+    calls = []
+
+    def euclidean(position, goal_position):  # the classic heuristic, but not the object a_star knows
+        calls.append(position)
+        return math.hypot(position[0] - goal_position[0], position[1] - goal_position[1])
+
+    for _ in range(3):
+        start, goal = tuple(free[rng.integers(len(free))]), tuple(free[rng.integers(len(free))])
+        expected = dijkstra_cost(grid, start, goal)
+        if math.isinf(expected):
+            with pytest.raises(NoPathError):
+                a_star(grid, euclidean, start, goal)
+            continue
+        path, cost = a_star(grid, euclidean, start, goal)
+        assert cost == pytest.approx(expected, abs=1e-9)
+        assert_valid_path(grid, np.array(path), start, goal, cost)
+    assert calls  # the heuristic was really asked
+
+
+# A wall up column 6 with a gap in the top row, and a block in column 3 in front of the start. The cheapest way
+# from S (4, 0) to G (4, 12) passes the block and climbs along the wall to the gap; a search pulled hard towards
+# the goal (5 x the straight-line distance) runs into the block and the wall first and settles for a longer way.
+#   north 8  . . . . . . . . . . . . .
+#   north 7  . . . . . . # . . . . . .
+#   north 6  . . . . . . # . . . . . .
+#   north 5  . . . # . . # . . . . . .
+#   north 4  S . . # . . # . . . . . G
+#   north 3  . . . # . . # . . . . . .
+#   north 2  . . . . . . # . . . . . .
+#   north 1  . . . . . . # . . . . . .
+#   north 0  . . . . . . # . . . . . .
+TRAP = np.zeros((9, 13), dtype=bool)
+TRAP[0:8, 6] = True
+TRAP[3:6, 3] = True
+
+
+def test_a_custom_heuristic_changes_the_search():
+    def euclidean(a, b):
+        return math.hypot(a[0] - b[0], a[1] - b[1])
+
+    optimal = dijkstra_cost(TRAP, (4, 0), (4, 12))
+    dijkstra = python_a_star(TRAP, lambda a, b: 0.0, (4, 0), (4, 12))
+    guided = python_a_star(TRAP, euclidean, (4, 0), (4, 12))
+    greedy_path, greedy_cost = a_star(TRAP, lambda a, b: 5 * euclidean(a, b), (4, 0), (4, 12))
+    assert dijkstra.cost == pytest.approx(optimal) and guided.cost == pytest.approx(optimal)
+    assert guided.expanded < dijkstra.expanded  # a better-informed heuristic expands fewer cells
+    assert greedy_cost > optimal + 0.5  # an inadmissible one is followed, to a longer path
+    assert_valid_path(TRAP, np.array(greedy_path), (4, 0), (4, 12), greedy_cost)
+    assert a_star(TRAP, heuristic, (4, 0), (4, 12))[1] == pytest.approx(optimal)  # the compiled path
+
+
+def test_a_querys_memory_does_not_grow_with_the_grid():
+    # The same 60 x 60 neighbourhood alone and walled into a 3000 x 3000 grid (9 M cells): the search touches the
+    # same cells, so its state table is the same size, and neither query allocates anything grid-sized.
+    import tracemalloc
+
+    rng = np.random.default_rng(11)
+    small = random_grid(rng, shape=(60, 60), density=0.3)
+    small[0, 0] = small[59, 59] = False
+    big = np.ones((3000, 3000), dtype=bool)
+    big[1500:1560, 1500:1560] = small
+    results = []
+    for grid, offset in ((small, 0), (big, 1500)):
+        tracemalloc.start()
+        planner = GridPlanner(grid)
+        built = tracemalloc.get_traced_memory()[1]
+        tracemalloc.reset_peak()
+        before = tracemalloc.get_traced_memory()[0]
+        path = planner.plan((offset, offset), (offset + 59, offset + 59))
+        query = tracemalloc.get_traced_memory()[1] - before  # numba's allocations are traced too
+        tracemalloc.stop()
+        results.append((path, built, query))
+    (small_path, _, small_query), (big_path, big_built, big_query) = results
+    assert big_path.cost == small_path.cost and big_path.expanded == small_path.expanded
+    assert big_path.state_entries == small_path.state_entries < 4096
+    assert big_query < 100_000 and small_query < 100_000
+    # The planner's own tables: the padded grid (a byte per cell) and the jump scans' bit tables (another byte).
+    assert big_built < 2.1 * big.size
+
+
 def test_classic_a_star_signature_returns_tuples_and_cost():
     grid = np.zeros((3, 3), dtype=bool)
     path, cost = a_star(grid, heuristic, (0, 0), (2, 2))
@@ -210,3 +296,57 @@ def test_classic_heuristic_is_euclidean():
 def test_grid_planner_rejects_non_bool_grids():
     with pytest.raises(ValueError, match="bool"):
         GridPlanner(np.zeros((3, 3), dtype=np.uint8))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The bit tables under jump point search, against plain NumPy and a cell-by-cell scan
+
+
+def padded_bits_reference(grid: np.ndarray) -> np.ndarray:
+    """The padded grid packed by NumPy: bit k of word w of row r = padded cell (r, 64 w + k), past the end 1."""
+    padded = np.pad(grid, 1, constant_values=True)
+    words = (padded.shape[1] + 63) // 64
+    wide = np.ones((padded.shape[0], 64 * words), dtype=bool)
+    wide[:, : padded.shape[1]] = padded
+    return np.packbits(wide, axis=1, bitorder="little").view("<u8")
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (5, 62), (7, 63), (3, 64), (66, 65), (130, 129)])
+def test_bit_packing_matches_numpy(shape):
+    from skyroute.planning import kernels
+
+    grid = np.random.default_rng(sum(shape)).random(shape) < 0.4
+    np.testing.assert_array_equal(kernels.pack_rows(grid), padded_bits_reference(grid))
+    np.testing.assert_array_equal(kernels.pack_columns(grid), padded_bits_reference(grid.T))
+
+
+def scan_reference(padded: np.ndarray, r: int, c: int, step: int, target: int) -> int:
+    """Cell by cell along row r from column c: -1 at a blocked cell, else the first cell that is the target or
+    has a free side cell whose cell one step back is blocked."""
+    x = c
+    while True:
+        x += step
+        if padded[r, x]:
+            return -1
+        if x == target:
+            return x
+        for side in (r - 1, r + 1):
+            if not padded[side, x] and padded[side, x - step]:
+                return x
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_word_scans_stop_where_a_cell_by_cell_scan_does(seed):
+    from skyroute.planning.kernels import bits
+
+    rng = np.random.default_rng(seed)
+    grid = rng.random((12, 200)) < [0.02, 0.1, 0.3][seed % 3]
+    padded = np.pad(grid, 1, constant_values=True)
+    tables = bits.scan_tables(bits.pack_rows(grid))
+    free = np.argwhere(~padded)
+    for r, c in free[rng.integers(len(free), size=200)]:
+        target = int(rng.integers(0, 202)) if rng.random() < 0.3 else -1
+        up = bits.scan_up(tables, int(r), int(c), target if target > c else -1)
+        down = bits.scan_down(tables, int(r), int(c), target if 0 <= target < c else -1)
+        assert up == scan_reference(padded, r, c, 1, target if target > c else -1)
+        assert down == scan_reference(padded, r, c, -1, target if 0 <= target < c else -1)

@@ -64,3 +64,12 @@ def test_console_scripts_point_at_existing_functions(wheel):
         module, function = target.split(":")
         source = wheel.read(module.replace(".", "/") + ".py").decode()
         assert f"def {function}(" in source
+
+
+def test_the_wheel_ships_the_live_views_page_and_vendored_three_js_with_its_licence(wheel):
+    shipped = set(wheel.namelist())
+    static = ROOT / "skyroute" / "view" / "static"
+    files = {p.relative_to(ROOT).as_posix() for p in static.rglob("*") if p.is_file()}
+    assert {"skyroute/view/static/index.html", "skyroute/view/static/vendor/three/three.module.js",
+            "skyroute/view/static/vendor/three/LICENSE"} <= files
+    assert files <= shipped

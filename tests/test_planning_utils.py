@@ -1,9 +1,8 @@
-"""Map files, configuration space, pruning and waypoints."""
+"""Configuration space, pruning and waypoints (the map reader has tests/test_maps.py)."""
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +11,6 @@ from planning_utils import (
     BlockedCellError,
     GridMap,
     GridPlanner,
-    MapFormatError,
     NoPathError,
     create_grid,
     headings_along,
@@ -20,81 +18,36 @@ from planning_utils import (
     path_length,
     prune_collinear,
     prune_path,
-    read_colliders,
-    read_home,
     supercover,
     waypoints_from_cells,
 )
 from tests.test_grid_search import random_grid
 
-SF_MAP = Path(__file__).resolve().parents[2] / "shared" / "maps" / "udacity_sf_colliders.csv"
-HEADER = "lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
-
-
-def write_map(tmp_path: Path, text: str) -> Path:
-    path = tmp_path / "map.csv"
-    path.write_text(text)
-    return path
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Map files
-
-
-def test_reads_home_and_rows(tmp_path):
-    city = read_colliders(write_map(tmp_path, HEADER + "1,2,3,4,5,6\n\n-1.5,2,3,0.5,0.5,3\n"))
-    assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)
-    assert city.obstacles.tolist() == [[1, 2, 3, 4, 5, 6], [-1.5, 2, 3, 0.5, 0.5, 3]]
-
-
-def test_read_home_returns_lat_then_lon(tmp_path):
-    assert read_home(write_map(tmp_path, HEADER + "1,2,3,4,5,6\n")) == (37.79248, -122.39745)
-
-
-@pytest.mark.skipif(not SF_MAP.exists(), reason="shared SF map not present")
-def test_reads_the_shared_sf_map_unchanged():
-    city = read_colliders(SF_MAP)
-    assert city.obstacles.shape == (3845, 6)
-    assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)
-
-
-@pytest.mark.parametrize(
-    "text, line, message",
-    [
-        ("", 1, "empty file"),
-        ("37.7, -122.3\n" + HEADER, 1, "expected 'lat0"),
-        ("lat0 95.0, lon0 1.0\n" + HEADER.splitlines()[1] + "\n1,2,3,4,5,6\n", 1, "outside"),
-        ("lat0 37.7, lon0 -122.3\n", 2, "expected header"),
-        ("lat0 37.7, lon0 -122.3\nx,y,z\n1,2,3,4,5,6\n", 2, "expected header"),
-        (HEADER, 3, "no obstacle rows"),
-        (HEADER + "1,2,3,4,5,6\n1,2,3,4,5\n", 4, "expected 6 columns, got 5"),
-        (HEADER + "1,2,3,4,5,6\n1,2,x,4,5,6\n", 4, "not a number: 'x'"),
-        (HEADER + "1,2,3,4,5,6\n\n1,2,nan,4,5,6\n", 5, "NaN or infinite"),
-        (HEADER + "1,2,inf,4,5,6\n", 3, "NaN or infinite"),
-        (HEADER + "1,2,3,4,5,6\n1,2,3,-4,5,6\n", 4, "negative half size"),
-    ],
-)
-def test_bad_map_files_name_the_file_and_line(tmp_path, text, line, message):
-    path = write_map(tmp_path, text)
-    with pytest.raises(MapFormatError, match=message) as info:
-        read_colliders(path)
-    assert info.value.line == line
-    assert str(info.value).startswith(f"{path}:{line}: ")
-
-
-def test_binary_file_is_a_map_format_error(tmp_path):
-    path = tmp_path / "map.csv"
-    path.write_bytes(b"\xff\xfe\x00garbage")
-    with pytest.raises(MapFormatError, match="not a text file"):
-        read_colliders(path)
-
-
 # ---------------------------------------------------------------------------------------------------------------
 # Configuration space
 
 
+def point_to_footprint_m(north: float, east: float, box) -> float:
+    """Exact horizontal distance from a point to a box's footprint (0 inside)."""
+    gap_n = max(box[0] - box[3] - north, north - (box[0] + box[3]), 0.0)
+    gap_e = max(box[1] - box[4] - east, east - (box[1] + box[4]), 0.0)
+    return math.hypot(gap_n, gap_e)
+
+
+def cell_to_footprint_m(north0: float, east0: float, box) -> float:
+    """Exact distance from the 1 m square [north0, north0 + 1] x [east0, east0 + 1] to a box's footprint: the
+    point-to-box distance of the square's point nearest the box (clamp the box centre into the square)."""
+    return point_to_footprint_m(min(max(box[0], north0), north0 + 1), min(max(box[1], east0), east0 + 1), box)
+
+
+def reaches(box, altitude, safety) -> bool:
+    return box[2] + box[5] + safety > altitude
+
+
 def brute_force_grid(data, altitude, safety):
-    """Reference: test each cell square against each inflated box with a Python loop."""
+    """Reference: every cell square against every box with the exact distance above, in plain Python loops.
+    Blocked iff some point of the square is closer than the margin to a box that reaches the altitude (with no
+    margin: iff the square overlaps the footprint's interior)."""
     north, east, alt, dn, de, da = data.T
     n0 = int(np.floor(np.min(north - dn)))
     e0 = int(np.floor(np.min(east - de)))
@@ -102,13 +55,15 @@ def brute_force_grid(data, altitude, safety):
     grid = np.zeros(shape, dtype=bool)
     for i in range(shape[0]):
         for j in range(shape[1]):
-            for row in data:
-                if row[2] + row[5] + safety <= altitude:
+            for box in data:
+                if not reaches(box, altitude, safety):
                     continue
-                # open rectangle (a, b) x (c, d) intersects the cell square [i, i+1) x [j, j+1)
-                a, b = row[0] - row[3] - safety - n0, row[0] + row[3] + safety - n0
-                c, d = row[1] - row[4] - safety - e0, row[1] + row[4] + safety - e0
-                if i + 1 > a and i < b and j + 1 > c and j < d:
+                if safety > 0:
+                    hit = cell_to_footprint_m(n0 + i, e0 + j, box) < safety
+                else:
+                    hit = (n0 + i + 1 > box[0] - box[3] and n0 + i < box[0] + box[3]
+                           and e0 + j + 1 > box[1] - box[4] and e0 + j < box[1] + box[4])
+                if hit:
                     grid[i, j] = True
                     break
     return grid, n0, e0
@@ -122,32 +77,54 @@ def random_obstacles(rng, count=12, extent=30.0):
 
 
 @pytest.mark.parametrize("seed", range(15))
-def test_create_grid_matches_a_brute_force_reference(seed):
+def test_create_grid_matches_an_exact_distance_reference(seed):
     rng = np.random.default_rng(seed)
     data = random_obstacles(rng)
-    altitude, safety = rng.uniform(0, 25), rng.uniform(0, 4)
+    altitude, safety = rng.uniform(0, 25), [0.0, 1.0, 5.0, rng.uniform(0, 6)][seed % 4]
     grid, n0, e0 = create_grid(data, altitude, safety)
     expected, en0, ee0 = brute_force_grid(data, altitude, safety)
     assert (n0, e0) == (en0, ee0)
     np.testing.assert_array_equal(grid, expected)
 
 
-@pytest.mark.parametrize("seed", range(10))
-def test_free_cells_keep_the_safety_distance_over_their_whole_square(seed):
+@pytest.mark.parametrize("seed", range(20))
+def test_no_free_cell_comes_within_the_margin_and_no_blocked_cell_is_far_from_every_box(seed):
     rng = np.random.default_rng(100 + seed)
-    data = random_obstacles(rng)
-    altitude, safety = 5.0, rng.uniform(0.5, 4)
+    data = random_obstacles(rng, count=int(rng.integers(1, 25)))
+    if seed % 2:
+        data = np.round(data, 1)  # boxes on a decimal grid, as map files have them: many exact ties
+    altitude, safety = 5.0, float(rng.choice([0.5, 2.0, 5.0, rng.uniform(0.1, 6)]))
     grid, n0, e0 = create_grid(data, altitude, safety)
-    tall = data[data[:, 2] + data[:, 5] + safety > altitude]
-    free = np.argwhere(~grid)
-    # Closest point of each free cell square to each box footprint, then the Euclidean distance.
-    lo = free + (n0, e0)
-    hi = lo + 1
-    for box in tall:
-        bmin = box[:2] - box[3:5]
-        bmax = box[:2] + box[3:5]
-        gap = np.maximum(0, np.maximum(bmin - hi, lo - bmax))
-        assert (np.hypot(gap[:, 0], gap[:, 1]) >= safety - 1e-9).all()
+    tall = [box for box in data if reaches(box, altitude, safety)]
+    for i, j in np.argwhere(~grid):
+        assert all(cell_to_footprint_m(n0 + i, e0 + j, box) >= safety for box in tall), (i, j)
+    for i, j in np.argwhere(grid):
+        # The square comes closer than the margin, so its centre is within margin + half a diagonal.
+        centre_distance = min(point_to_footprint_m(n0 + i + 0.5, e0 + j + 0.5, box) for box in tall)
+        assert centre_distance < safety + math.sqrt(2) / 2 + 1e-9, (i, j)
+
+
+def test_the_margin_has_rounded_corners():
+    # A 10 x 10 m footprint at north 0..10, east 0..10 (posts fix the map to 0..30), 5 m margin. By hand, the
+    # nearest point of cell (13, 13) (square 13..14) to the corner (10, 10) is (13, 13): 4.24 m, blocked;
+    # cell (14, 13): (14, 13), exactly 5 m, free; (14, 14): 5.66 m, free. A square margin blocks all three.
+    data = np.array([[5, 5, 10, 5, 5, 10], [29.5, 29.5, 0.1, 0.5, 0.5, 0.1]])
+    grid = create_grid(data, 5, 5)[0]
+    assert grid[13, 13] and not grid[14, 13] and not grid[13, 14] and not grid[14, 14]
+    assert grid[14, 9] and grid[14, 10] and not grid[15, 9]  # straight out from the north face: 5 m, no further
+
+
+def test_a_diagonal_gap_a_square_margin_would_close_stays_open():
+    # Two 10 m towers meeting the map's corners, north/east 0..10 and 20..30: their corners are 14.1 m apart,
+    # so a 5 m margin leaves a 4.1 m lane between them. Square-grown (15 m squares) they would touch at (15, 15)
+    # and cut the map in two; the only way from the north-west to the south-east is through the lane.
+    data = np.array([[5, 5, 50, 5, 5, 50], [25, 25, 50, 5, 5, 50]])
+    grid_map = GridMap.build(data, altitude_m=5, safety_m=5)
+    plan = grid_map.plan((25.5, 2.5), (2.5, 25.5))
+    for a, b in zip(plan.waypoints[:-1, :2], plan.waypoints[1:, :2]):
+        for t in np.linspace(0, 1, 200):
+            point = a + t * (b - a)
+            assert min(point_to_footprint_m(*point, box) for box in data) >= 5 - 1e-9
 
 
 def test_grid_rows_increase_northwards_and_offsets_are_the_south_west_corner():

@@ -11,6 +11,7 @@ import numpy as np
 
 from skyroute.cli.exits import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NO_PATH, EXIT_OK, UserError
 from skyroute.cli.setting import Setting, make_plan, plan_summary, save_plot
+from skyroute.cli.view_export import open_view, write_exports
 from skyroute.planning.plan import Plan
 
 log = logging.getLogger("motion_planning")
@@ -62,6 +63,8 @@ def fly(
     link_lost_timeout_s: float = 30.0,
     log_dir: str | Path,
     plot: str | None,
+    view_port: int | None = None,
+    exports: Sequence[str] | None = None,
     out,
 ) -> int:
     """Connect, arm, plan from where the vehicle is, take off, fly, land at the goal, disarm.
@@ -82,6 +85,7 @@ def fly(
             if other is not handler and other.level == logging.NOTSET:
                 other.setLevel(logging.WARNING)
     plans: list[Plan] = []
+    view = None
 
     def plan_from(start_north_m: float, start_east_m: float) -> np.ndarray:
         try:
@@ -96,6 +100,7 @@ def fly(
         return plan.waypoints
 
     try:
+        view = open_view(view_port, setting, goal_ne, out)
         print(f"connecting to {connection} ...", file=out, flush=True)
         try:
             drone = vehicle_mod.MavlinkVehicle(
@@ -111,6 +116,8 @@ def fly(
                 no_path_errors=(PlanRefused,), vehicle_errors=(vehicle_mod.VehicleError,),
                 arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s,
             )
+            if view is not None:
+                view.follow(mission, drone)
             try:
                 result = mission.run()
             except vehicle_mod.VehicleError as exc:  # before arming: e.g. no position to plan from
@@ -126,6 +133,8 @@ def fly(
                 print(f"error: mission failed: {exc}", file=sys.stderr)
                 if exc.result is not None and plans and plot:
                     save_plot(plot, setting, plans[-1], exc.result.track[:, 1:3])
+                if exc.result is not None and plans:
+                    write_exports(exports, setting, plans[-1], exc.result.track, out)
                 return EXIT_FAILED
             except KeyboardInterrupt:
                 print(f"interrupted: {interrupted_outcome(mission)}", file=sys.stderr)
@@ -136,8 +145,12 @@ def fly(
         if plot and plans:
             save_plot(plot, setting, plans[-1], result.track[:, 1:3])
             print(f"plot written to {plot}", file=out)
+        if plans:
+            write_exports(exports, setting, plans[-1], result.track, out)
         return EXIT_OK
     finally:
+        if view is not None:
+            view.close()
         root.removeHandler(handler)
         handler.close()
         for logger_or_handler, level in saved_levels:

@@ -28,8 +28,10 @@ from skyroute.cli.bundled_sim import BundledSim, sim_report_summary
 from skyroute.cli.exits import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, UserError
 from skyroute.cli.flying import fly, make_log_dir
 from skyroute.cli.setting import check_endpoint, load_setting, make_plan, plan_document, print_plan, save_plot
+from skyroute.cli.view_export import check_view_export, write_exports
 from skyroute.frames import Geodetic, geodetic_to_ned
 from skyroute.planning import PLANNERS, PLANNERS_3D
+from skyroute.view import DEFAULT_VIEW_PORT
 
 log = logging.getLogger("motion_planning")
 
@@ -55,7 +57,7 @@ def check_numbers(**options) -> None:
         "alt": (0.0, 10_000.0, False), "safety": (0.0, 1_000.0, True), "goal_alt": (0.0, 10_000.0, True),
         "speedup": (0.0, 1_000.0, False), "timeout": (0.0, 86_400.0, False),
         "arm_timeout": (0.0, 86_400.0, False), "link_timeout": (0.0, 86_400.0, False),
-        "port": (1, 65_535, True), "seed": (0, 2**32 - 1, True),
+        "port": (1, 65_535, True), "seed": (0, 2**32 - 1, True), "samples": (2, 1_000_000, True),
     }
     for name, value in options.items():
         if value is None or name not in ranges:
@@ -82,9 +84,10 @@ def run(
     start_lat: float | None = None,
     start_lon: float | None = None,
     goal_alt: float | None = None,
-    map_path: str | Path = DEFAULT_MAP,
+    map_path: str | Path | None = None,
     planner: str = "grid",
     seed: int = 0,
+    samples: int = 1000,
     plot: str | None = None,
     json_output: bool = False,
     plan_only: bool = False,
@@ -97,6 +100,8 @@ def run(
     arm_timeout: float = 60.0,
     link_timeout: float = 30.0,
     log_dir: str | Path = "logs",
+    view: int | None = None,
+    export: Sequence[str] | None = None,
     out=None,
 ) -> int:
     """Plan (and, unless ``plan_only``, fly) one mission; returns the process exit code.
@@ -110,12 +115,15 @@ def run(
         raise UserError("give both --start_lat and --start_lon, or neither (start at the map's home)")
     check_numbers(goal_lat=goal_lat, goal_lon=goal_lon, start_lat=start_lat, start_lon=start_lon, alt=alt,
                   safety=safety, goal_alt=goal_alt, seed=seed, port=port, speedup=speedup, timeout=timeout,
-                  arm_timeout=arm_timeout, link_timeout=link_timeout)
+                  arm_timeout=arm_timeout, link_timeout=link_timeout, samples=samples)
     if goal_alt is not None and planner not in PLANNERS_3D:
         raise UserError(f"--goal_alt needs a 3D planner ({' or '.join(PLANNERS_3D)}), not {planner}")
     if plot and not Path(plot).resolve().parent.is_dir():
         raise UserError(f"cannot write the plot {plot}: {Path(plot).resolve().parent} is not a directory")
-    setting = load_setting(map_path, alt, safety)
+    check_view_export(view, export, plan_only=plan_only)
+    map_given = map_path is not None
+    map_path = map_path if map_given else DEFAULT_MAP
+    setting = load_setting(map_path, alt, safety, map_given=map_given)
     goal_ne = geodetic_to_ned(Geodetic(goal_lat, goal_lon, 0.0), setting.home)[:2]
     if not plan_only:
         if start_lat is not None and not sim:
@@ -125,7 +133,7 @@ def run(
         make_log_dir(log_dir)
         options = dict(planner=planner, goal_alt_m=goal_alt, seed=seed, heartbeat_timeout_s=timeout,
                        arm_timeout_s=arm_timeout, link_lost_timeout_s=link_timeout, log_dir=log_dir, plot=plot,
-                       out=out)
+                       view_port=view, exports=export, out=out)
         if not sim:
             return fly(setting, goal_ne, connection=connection or f"tcp:{host}:{port}", **options)
         import time
@@ -147,7 +155,7 @@ def run(
         start_ne = geodetic_to_ned(Geodetic(start_lat, start_lon, 0.0), setting.home)[:2]
     if goal_alt is not None:
         check_endpoint(setting, "goal", *goal_ne, on_map_only=True)
-    plan = make_plan(setting, start_ne, goal_ne, planner, goal_alt_m=goal_alt, seed=seed)
+    plan = make_plan(setting, start_ne, goal_ne, planner, goal_alt_m=goal_alt, seed=seed, samples=samples)
     if json_output:
         json.dump(plan_document(setting, plan, start_ne, goal_ne), out)
         out.write("\n")
@@ -157,6 +165,7 @@ def run(
         save_plot(plot, setting, plan)
         if not json_output:
             print(f"plot written to {plot}", file=out)
+    write_exports(export, setting, plan, out=None if json_output else out)
     return EXIT_OK
 
 
@@ -186,9 +195,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="start longitude (with --plan-only or --sim; default: the map's home)")
     where.add_argument("--goal_alt", type=float, help="goal altitude in metres, e.g. a rooftop (grid3d planner)")
     how = parser.add_argument_group("how to plan")
-    how.add_argument("--map", dest="map_path", default=str(DEFAULT_MAP), help="colliders.csv map file")
+    how.add_argument("--map", dest="map_path", help=f"colliders.csv map file (default: {DEFAULT_MAP})")
     how.add_argument("--planner", choices=PLANNERS, default="grid", help="planning algorithm")
     how.add_argument("--seed", type=int, default=0, help="random seed for sampling planners")
+    how.add_argument("--samples", type=int, default=1000, help="roadmap nodes of the prm planner")
     link = parser.add_argument_group("the vehicle")
     link.add_argument("--connection", help="pymavlink connection string, e.g. tcp:127.0.0.1:5760 or "
                       "udpin:0.0.0.0:14540 (default: tcp:HOST:PORT)")
@@ -207,12 +217,22 @@ def build_parser() -> argparse.ArgumentParser:
     output.add_argument("--plan-only", dest="plan_only", action="store_true", help="plan and print; no drone")
     output.add_argument("--json", dest="json_output", action="store_true", help="print the plan as one JSON object")
     output.add_argument("--plot", metavar="FILE.png", help="draw the map, plan (and flown track) to a PNG")
+    output.add_argument("--view", nargs="?", type=int, const=DEFAULT_VIEW_PORT, metavar="PORT",
+                        help=f"serve a live 3D view of the flight on http://127.0.0.1:PORT/ (default port "
+                        f"{DEFAULT_VIEW_PORT}; 0 picks a free one)")
+    output.add_argument("--export", action="append", metavar="FILE",
+                        help="write the plan (and after a flight the flown track) to FILE, format from the "
+                        "extension: .plan (QGroundControl), .waypoints (MAVProxy/Mission Planner), .geojson, .kml; "
+                        "repeatable")
     output.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    output.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress lines on stderr (such as the first run's 'compiling' notice)")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = vars(build_parser().parse_args(argv))
+    announce_first_compile(not args.pop("quiet"))
     logging.basicConfig(
         level=logging.INFO if args.pop("verbose") else logging.WARNING,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
@@ -241,5 +261,27 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def announce_first_compile(enabled: bool = True) -> None:
+    """Say so on stderr, once, if this run has to compile the planner's kernels (a fresh install)."""
+    from skyroute.planning import kernels
+
+    kernels.on_first_compile(None if not enabled else lambda: print(
+        "compiling the planner's kernels (first run only, a few seconds; cached on disk after that)",
+        file=sys.stderr, flush=True,
+    ))
+
+
+def console_main() -> int:
+    """The process entry point (``motion_planning.py``, the ``motion-planning`` script): :func:`main`, then skip
+    the garbage collector's last pass at exit (``gc.freeze``). With numba loaded that pass takes about 0.1 s, a
+    fifth of a plan-only run, and frees nothing the operating system would not; files and logs are flushed and
+    closed as usual (by their owners and ``atexit``)."""
+    code = main()
+    import gc
+
+    gc.freeze()
+    return code
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(console_main())

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -13,7 +12,7 @@ import numpy as np
 from skyroute.cli.exits import EXIT_NO_PATH, UserError
 from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
 from skyroute.maps import CityMap, MapFormatError, read_colliders
-from skyroute.planning.cspace import create_grid, nearest_free_cell
+from skyroute.planning.cspace import nearest_free_in_map
 from skyroute.planning.errors import BlockedCellError, NoPathError, OutsideGridError, PlanningError
 from skyroute.planning.grid import GridMap
 from skyroute.planning.plan import Plan
@@ -32,10 +31,13 @@ class Setting:
     altitude_m: float
     safety_m: float
 
-    @functools.cached_property
-    def landing_grid(self) -> np.ndarray:
-        """Cells at least the safety margin from every obstacle, however low: where the vehicle may descend."""
-        return create_grid(self.city.obstacles, 0.0, self.safety_m)[0]
+    def landing_point(self, cell: tuple[int, int]) -> tuple[tuple[int, int] | None, bool]:
+        """Whether the vehicle may descend in ``cell`` (at least the safety margin from every obstacle, however
+        low), and the nearest cell where it may: ``(nearest landing cell or None, blocked)``. Only the
+        neighbourhood of ``cell`` is rasterised."""
+        grid_map = self.grid_map
+        return nearest_free_in_map(self.city.obstacles, 0.0, self.safety_m, grid_map.north_offset,
+                                   grid_map.east_offset, grid_map.grid.shape, cell)
 
     def to_geodetic(self, north_m: float, east_m: float) -> Geodetic:
         return ned_to_geodetic(LocalNED(north_m, east_m, 0.0), self.home)
@@ -46,17 +48,25 @@ class Setting:
         return f"{p.lat_deg:.6f}, {p.lon_deg:.6f} (N {north_m:.1f} m, E {east_m:.1f} m)"
 
 
-def load_setting(map_path: str | Path, altitude_m: float, safety_m: float) -> Setting:
-    """Read the map and build the configuration-space grid; map problems become :class:`UserError`."""
+def load_setting(map_path: str | Path, altitude_m: float, safety_m: float, *, map_given: bool = True) -> Setting:
+    """Read the map and build the configuration-space grid; map problems become :class:`UserError`.
+
+    ``map_given`` says the user named the file (``--map``); only a default map that is missing gets the hint to
+    pass one.
+    """
     try:
         city = read_colliders(map_path)
     except MapFormatError as exc:
         raise UserError(f"bad map file {exc}") from None
     except OSError as exc:
-        hint = " (pass --map FILE)" if isinstance(exc, FileNotFoundError) else ""
+        hint = " (pass --map FILE)" if isinstance(exc, FileNotFoundError) and not map_given else ""
         raise UserError(f"cannot read map file {map_path}: {exc.strerror or exc}{hint}") from None
     home = Geodetic(city.lat0_deg, city.lon0_deg, 0.0)
-    return Setting(city, home, GridMap.build(city.obstacles, altitude_m, safety_m), altitude_m, safety_m)
+    try:
+        grid_map = GridMap.build(city.obstacles, altitude_m, safety_m)
+    except ValueError as exc:  # e.g. a map over the grid size limit, read with a custom reader
+        raise UserError(f"cannot plan on {map_path}: {exc}") from None
+    return Setting(city, home, grid_map, altitude_m, safety_m)
 
 
 def check_endpoint(
@@ -82,8 +92,8 @@ def check_endpoint(
     if on_map_only:
         return
     if not grid_map.grid[i, j]:
-        if which == "goal" and setting.landing_grid[i, j]:
-            nearest = nearest_free_cell(setting.landing_grid, (i, j))
+        nearest, blocked = setting.landing_point((i, j)) if which == "goal" else (None, False)
+        if blocked:
             hint = "no free point on the map"
             if nearest is not None:
                 hint = "nearest free landing point: " + setting.describe(*grid_map.centre_of(nearest))
@@ -114,8 +124,12 @@ def make_plan(
     goal_alt_m: float | None = None,
     seed: int = 0,
     snap_start: bool = False,
+    samples: int = 1000,
 ) -> Plan:
-    """Plan with the named planner; bad endpoints and "no path" become :class:`UserError` (exit 2 or 3)."""
+    """Plan with the named planner; bad endpoints and "no path" become :class:`UserError` (exit 2 or 3).
+
+    ``seed`` and ``samples`` set the ``prm`` roadmap (its random seed and node count).
+    """
     check_endpoint(setting, "start", *start_ne, allow_margin=snap_start)
     if goal_alt_m is None:
         check_endpoint(setting, "goal", *goal_ne)
@@ -126,12 +140,19 @@ def make_plan(
 
         return graphs.plan(
             planner, setting.city.obstacles, start_ne, goal_ne, setting.altitude_m, setting.safety_m,
-            goal_alt_m=goal_alt_m, seed=seed, snap_start=snap_start,
+            goal_alt_m=goal_alt_m, seed=seed, snap_start=snap_start, samples=samples,
         )
     except NoPathError as exc:
+        why = str(exc)
+        if planner == "prm":
+            from skyroute.planning.sampling import RoadmapNoPathError  # the roadmap falls back to grid3d
+            if isinstance(exc, RoadmapNoPathError):
+                why = why.replace("another seed or more samples", "another --seed or more --samples")
+            else:
+                why += "; neither the random roadmap nor the complete grid3d search it falls back to found one"
         raise UserError(
             f"no path from {setting.describe(*start_ne)} to {setting.describe(*goal_ne)} at "
-            f"{setting.altitude_m:g} m with a {setting.safety_m:g} m safety margin ({exc})",
+            f"{setting.altitude_m:g} m with a {setting.safety_m:g} m safety margin ({why})",
             EXIT_NO_PATH,
         ) from None
     except BlockedCellError as exc:  # e.g. a 3D goal whose altitude is inside a building's margin
@@ -181,10 +202,20 @@ def print_plan(plan: Plan, out=sys.stdout) -> None:
 
 
 def save_plot(path, setting: Setting, plan: Plan, track_ne=None) -> None:
+    """The plan's picture: over the configuration space at the flight altitude, or, for a route that changes
+    altitude, over the height map with its altitude profile."""
     from skyroute.view import plotting  # matplotlib only when a picture is asked for
 
+    floor = None
+    if np.ptp(plan.waypoints[:, 2]) > 0:
+        floor = plan.structure.get("floor")  # grid3d hands over its height map; otherwise build it
+        if floor is None:
+            from skyroute.planning.grid3d import floor_map
+
+            floor = floor_map(setting.city.obstacles, setting.safety_m)
     plotting.save_plan_figure(
         path, setting.city.obstacles, plan, altitude_m=setting.altitude_m, safety_m=setting.safety_m,
         track_ne=track_ne,
         grid=(setting.grid_map.grid, setting.grid_map.north_offset, setting.grid_map.east_offset),
+        floor=floor,
     )

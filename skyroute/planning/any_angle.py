@@ -1,14 +1,16 @@
-"""Compiled search kernels for the non-grid planners: a binary heap, Lazy Theta* and A* over a CSR roadmap.
+"""Compiled kernels for the non-grid planners: line of sight, the any-angle string puller, A* over a roadmap.
 
-* :func:`lazy_theta_star` is any-angle search on the occupancy grid (Nash, Koenig & Tovey 2010): A* over the
-  8-connected cells where a node's parent may be any cell it can see, so paths are not restricted to 45-degree
-  steps. "Line of sight" is the supercover walk of ``kernels.walk_supercover`` (every cell the segment between
-  two cell centres touches is free), the same test that checks every planner's legs, so each returned leg is
-  collision-free by construction. Lazy: line of sight is checked once per expansion, not once per neighbour.
+* :func:`taut_path` turns an 8-connected grid route into an any-angle one: after line-of-sight pruning, every turn
+  of the route is slid to the nearby free cell (within ``radius`` cells) that most shortens its two legs while
+  both stay visible, and a turn whose neighbours see each other is dropped, sweep after sweep until nothing
+  changes. The result is locally shortest among cell-centre polylines in the grid route's homotopy class: it
+  hugs the corners the grid route goes round, without the grid's 45-degree steps. "Visible" is the supercover
+  walk of ``kernels.walk_supercover`` (every cell the segment between two cell centres touches is free), the same
+  test that checks every planner's legs, so each returned leg is collision-free by construction.
 * :func:`roadmap_astar` is A* over a graph in CSR form (``indptr``, ``indices``, ``weights``) with per-query
   virtual start and goal nodes, so the medial-axis and Voronoi roadmaps are built once and queried without
   copying them.
-* Both use the heap of ``kernels`` (``heap_push`` / ``heap_pop`` on three parallel arrays ``f, g, node``);
+* The searches use the heap of ``kernels`` (``heap_push`` / ``heap_pop`` on three parallel arrays ``f, g, node``);
   among equal ``f`` the larger ``g`` pops first.
 
 Grid convention as in ``cspace``: ``bool`` grid, True = blocked, indexed ``grid[north_idx, east_idx]``.
@@ -19,9 +21,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from skyroute.planning import kernels
+from skyroute.planning.kernels import njit
 
 SQRT2 = math.sqrt(2.0)
 
@@ -50,96 +52,70 @@ def segments_visible(grid, cells_a, cells_b):
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Lazy Theta*
+# Any-angle: string pulling with sliding turns
 
 
 @njit(cache=True)
-def lazy_theta_star(grid, si, sj, gi, gj):
-    """Any-angle path on ``grid`` from cell ``(si, sj)`` to ``(gi, gj)`` (both free, on the grid).
+def _best_turn(grid, ai, aj, ci, cj, bi, bj, radius):
+    """The free cell within ``radius`` of turn ``(ci, cj)`` that both ends ``a``, ``b`` see and that makes
+    ``|a c| + |c b|`` shortest (the turn itself if none is shorter by more than 1e-9 cells)."""
+    n, m = grid.shape
+    best = math.hypot(ci - ai, cj - aj) + math.hypot(bi - ci, bj - cj)
+    best_i, best_j = ci, cj
+    for di in range(-radius, radius + 1):
+        for dj in range(-radius, radius + 1):
+            qi, qj = ci + di, cj + dj
+            if (di == 0 and dj == 0) or not (0 <= qi < n and 0 <= qj < m) or grid[qi, qj]:
+                continue
+            length = math.hypot(qi - ai, qj - aj) + math.hypot(bi - qi, bj - qj)
+            if length < best - 1e-9 and visible(grid, ai, aj, qi, qj) and visible(grid, qi, qj, bi, bj):
+                best, best_i, best_j = length, qi, qj
+    return best_i, best_j
 
-    Returns ``(cells, cost, expanded)``: the turning cells ``(K, 2)`` from start to goal, every consecutive pair
-    mutually visible, the path length in cells (= metres at 1 m) and the number of expansions; ``cells`` is empty
-    and ``cost`` is -1 when the goal is unreachable. Moves between neighbours follow the grid planner's graph
-    (8-connected, no diagonal past a blocked orthogonal cell), so Theta* finds a path whenever the grid planner
-    does.
 
-    A wall across rows 0-3 of column 2; the route turns once, at the free cell next to the wall's end, in one
-    straight leg each way (an 8-connected path would need 45-degree steps):
+@njit(cache=True)
+def taut_path(grid, cells, radius=3, max_sweeps=10_000):
+    """Shorten a route of cells ``(K, 2)`` whose consecutive cells see each other; returns ``(cells, sweeps)``.
+
+    Each sweep visits the turns in order: a turn whose neighbours see each other is dropped, otherwise it moves
+    to :func:`_best_turn`. Every change shortens the route, so the sweeps end (``max_sweeps`` is a backstop); the
+    first and last cells never move. Consecutive returned cells see each other.
+
+    A wall across rows 0-3 of column 2; the 8-connected route hugs it, the taut one turns once each side of the
+    wall's end, in straight legs (an 8-connected path would need 45-degree steps):
 
     >>> grid = np.zeros((6, 5), dtype=np.bool_)
     >>> grid[0:4, 2] = True
-    >>> cells, cost, expanded = lazy_theta_star(grid, 0, 0, 0, 4)
-    >>> cells.tolist()
+    >>> route = np.array([[0, 0], [1, 1], [2, 1], [3, 1], [4, 1], [4, 2], [4, 3], [3, 3], [2, 3], [1, 3], [0, 4]])
+    >>> taut_path(grid, route)[0].tolist()
     [[0, 0], [4, 1], [4, 3], [0, 4]]
-    >>> round(float(cost), 3) == round(2 * math.hypot(4, 1) + 2, 3)
-    True
     """
-    n, m = grid.shape
-    size = n * m
-    g_cost = np.full(size, np.inf)
-    parent = np.full(size, -1, np.int64)
-    closed = np.zeros(size, np.bool_)
-    start, goal = si * m + sj, gi * m + gj
-    di = np.array([1, -1, 0, 0, 1, 1, -1, -1])
-    dj = np.array([0, 0, 1, -1, 1, -1, 1, -1])
-    hf, hg, hv = kernels.new_heap()
-    g_cost[start] = 0.0
-    parent[start] = start
-    hf, hg, hv, hsize = kernels.heap_push(hf, hg, hv, 0, math.hypot(si - gi, sj - gj), 0.0, start)
-    expanded = 0
-    while hsize > 0:
-        v, fv, gv, hsize = kernels.heap_pop(hf, hg, hv, hsize)
-        if closed[v] or gv > g_cost[v]:
-            continue
-        vi, vj = v // m, v % m
-        p = parent[v]
-        if p != v and not visible(grid, p // m, p % m, vi, vj):
-            # Lazy step: the assumed parent cannot see v; fall back to the best closed neighbour.
-            best, best_parent = np.inf, -1
-            for k in range(8):
-                wi, wj = vi + di[k], vj + dj[k]
-                if not (0 <= wi < n and 0 <= wj < m) or not closed[wi * m + wj]:
-                    continue
-                if k >= 4 and (grid[vi + di[k], vj] or grid[vi, vj + dj[k]]):
-                    continue
-                c = g_cost[wi * m + wj] + (SQRT2 if k >= 4 else 1.0)
-                if c < best:
-                    best, best_parent = c, wi * m + wj
-            g_cost[v], parent[v] = best, best_parent
-            gv = best
-        closed[v] = True
-        expanded += 1
-        if v == goal:
-            break
-        p = parent[v]
-        pi, pj = p // m, p % m
-        for k in range(8):
-            wi, wj = vi + di[k], vj + dj[k]
-            if not (0 <= wi < n and 0 <= wj < m) or grid[wi, wj]:
+    pts = cells.copy()
+    count = pts.shape[0]
+    keep = np.ones(count, np.bool_)
+    sweeps = 0
+    changed = True
+    while changed and sweeps < max_sweeps:
+        changed = False
+        sweeps += 1
+        prev = 0
+        for k in range(1, count - 1):
+            if not keep[k]:
                 continue
-            w = wi * m + wj
-            if closed[w]:
+            nxt = k + 1
+            while not keep[nxt]:
+                nxt += 1
+            ai, aj, bi, bj = pts[prev, 0], pts[prev, 1], pts[nxt, 0], pts[nxt, 1]
+            if visible(grid, ai, aj, bi, bj):
+                keep[k] = False
+                changed = True
                 continue
-            if k >= 4 and (grid[vi + di[k], vj] or grid[vi, vj + dj[k]]):
-                continue
-            # Path 2 of Theta*: straight from v's parent, assuming line of sight (checked when w is expanded).
-            gw = g_cost[p] + math.hypot(wi - pi, wj - pj)
-            if gw < g_cost[w]:
-                g_cost[w], parent[w] = gw, p
-                hf, hg, hv, hsize = kernels.heap_push(hf, hg, hv, hsize, gw + math.hypot(wi - gi, wj - gj), gw, w)
-    if not closed[goal]:
-        return np.empty((0, 2), np.int64), -1.0, expanded
-    count = 1
-    v = goal
-    while v != start:
-        v = parent[v]
-        count += 1
-    cells = np.empty((count, 2), np.int64)
-    v = goal
-    for k in range(count - 1, -1, -1):
-        cells[k, 0], cells[k, 1] = v // m, v % m
-        v = parent[v]
-    return cells, g_cost[goal], expanded
+            ci, cj = _best_turn(grid, ai, aj, pts[k, 0], pts[k, 1], bi, bj, radius)
+            if ci != pts[k, 0] or cj != pts[k, 1]:
+                pts[k, 0], pts[k, 1] = ci, cj
+                changed = True
+            prev = k
+    return pts[keep], sweeps
 
 
 # --------------------------------------------------------------------------------------------------------------

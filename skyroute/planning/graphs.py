@@ -6,7 +6,7 @@ name           what it searches                                                 
 grid           8-connected cells, optimal (JPS), line-of-sight pruned                          grid
 medial-axis    skeleton of the free cells (scikit-image ``medial_axis``), 8-connected pixels    here
 voronoi        Voronoi ridges of the C-space obstacle boundary (scipy.spatial), kept if free    here
-any-angle      Lazy Theta* on the grid: any cell the path can see may be its parent             any_angle
+any-angle      the grid's optimal route, string-pulled with sliding turns (any heading)          any_angle
 grid3d         (north, east, altitude level) cells with climb/descent cost, rooftop goals      grid3d
 prm            probabilistic roadmap sampled in (north, east, altitude), k-nearest edges        sampling
 =============  ==============================================================================  =================
@@ -44,6 +44,7 @@ from skyroute.planning.pruning import (
     line_of_sight,
     path_length,
     prune_line_of_sight,
+    prune_path,
     waypoints_from_cells,
 )
 
@@ -66,6 +67,7 @@ def plan(
     goal_alt_m: float | None = None,
     seed: int = 0,
     snap_start: bool = False,
+    samples: int = 1000,
 ) -> Plan:
     """Plan with planner ``name`` from ``start_ne`` to ``goal_ne`` (map-frame ``(north_m, east_m)``).
 
@@ -82,8 +84,8 @@ def plan(
     goal_alt_m : float, optional
         Goal altitude for the 3D planners (``grid3d``, ``prm``), e.g. just above a roof plus the margin. The 2D
         planners reject a goal altitude different from ``altitude_m``.
-    seed : int
-        Random seed of ``prm`` (the others are deterministic).
+    seed, samples : int
+        Random seed and number of roadmap nodes of ``prm`` (the others are deterministic).
     snap_start : bool
         A start inside the safety margin (not inside an obstacle) plans from the nearest free cell; the route
         then begins with a lead-in leg from the start point itself, which is exempt from the margin.
@@ -118,7 +120,7 @@ def plan(
             f"planner {name!r} flies at one altitude ({altitude_m} m); goal_alt_m needs grid3d or prm"
         )
     obstacles = np.asarray(obstacles, dtype=np.float64)
-    options = {"seed": seed} if name == "prm" else {}
+    options = {"seed": seed, "n_samples": samples} if name == "prm" else {}
     planner, build_ms = structure_for(name, obstacles, altitude_m, safety_m, **options)
     if name in PLANNERS_3D:
         result = planner.plan(start_ne, goal_ne, goal_alt_m=goal_alt_m, snap_start=snap_start)
@@ -263,7 +265,7 @@ def plan_from_cells(
     """A 2D ``Plan`` from a route of cells whose consecutive pairs are mutually visible: prune, waypoints."""
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
     cells = cells[np.concatenate(([True], (np.diff(cells, axis=0) != 0).any(axis=1)))]  # a node on the start
-    pruned = prune_line_of_sight(gmap.grid, cells)
+    pruned = prune_path(gmap.grid, cells)
     waypoints = waypoints_from_cells(pruned, gmap.north_offset, gmap.east_offset, gmap.altitude_m)
     raw = cells + (gmap.north_offset + 0.5, gmap.east_offset + 0.5)
     if lead_in is not None:
@@ -289,7 +291,9 @@ def plan_from_cells(
 
 @dataclass(frozen=True)
 class AnyAnglePlanner:
-    """Lazy Theta* on the grid (see ``any_angle.lazy_theta_star``); legs are supercover-free by construction."""
+    """Any-angle routes on the grid: the optimal 8-connected route (jump point search), line-of-sight pruned, then
+    pulled taut (``any_angle.taut_path``): each turn slides to the nearby cell that shortens its legs while they
+    stay visible. Legs are supercover-free by construction; ``cost_m`` is the grid optimum it started from."""
 
     gmap: GridMap
 
@@ -300,12 +304,12 @@ class AnyAnglePlanner:
     def plan(self, start_ne: Sequence[float], goal_ne: Sequence[float], *, snap_start: bool = False) -> Plan:
         start, goal, lead_in = resolve_endpoints(self.gmap, start_ne, goal_ne, snap_start)
         t0 = time.perf_counter()
-        cells, cost, expanded = any_angle.lazy_theta_star(self.gmap.grid, start[0], start[1], goal[0], goal[1])
+        path = self.gmap.planner.plan(start, goal)
+        cells, sweeps = any_angle.taut_path(self.gmap.grid, prune_line_of_sight(self.gmap.grid, path.cells))
         search_ms = (time.perf_counter() - t0) * 1e3
-        if cost < 0:
-            raise NoPathError(start, goal, int(expanded))
-        extra = {"start_cell": list(start), "goal_cell": list(goal)}
-        return plan_from_cells("any-angle", self.gmap, cells, cost, search_ms, expanded, lead_in, extra, {})
+        extra = {"start_cell": list(start), "goal_cell": list(goal), "taut_sweeps": int(sweeps)}
+        return plan_from_cells("any-angle", self.gmap, cells, path.cost, search_ms, path.expanded, lead_in, extra,
+                               {})
 
 
 # --------------------------------------------------------------------------------------------------------------

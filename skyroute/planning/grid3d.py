@@ -1,22 +1,31 @@
 """Altitude-aware planning on a 2.5D height map: the ``grid3d`` planner and the 3D collision checks.
 
 The map becomes one float array ``floor_m[north_idx, east_idx]`` (same cells and offsets as
-``cspace.create_grid``): the lowest altitude at which the cell is free, i.e. the highest
-``top + safety_m`` of the obstacles whose grown footprint touches the cell (``-inf`` where none does). So
-``floor_m > z`` is exactly ``create_grid(obstacles, z, safety_m)[0]`` for every altitude ``z``, and one array
-serves every altitude.
+``cspace.create_grid``): the lowest altitude at which the cell is free, i.e. the highest ``top + safety_m`` of the
+obstacles whose footprint, grown by ``safety_m`` with rounded corners, covers the cell (``-inf`` where none does).
+So ``floor_m > z`` is exactly ``create_grid(obstacles, z, safety_m)[0]`` for every altitude ``z``, and one array
+serves every altitude. Vertically the margin is a flat lid ``safety_m`` above the roof over the whole grown
+footprint, a superset of the 3D ball around the box (conservative over roof edges); boxes count from the ground up.
 
-``grid3d`` searches cells ``(north_idx, east_idx, level)`` with ``level`` altitudes ``base + k * dz``
-(``dz <= 5`` m, chosen so the start and goal altitudes are both levels, up to the first level above every
-obstacle): 8-connected horizontal moves at one level (no diagonal past a blocked side cell), and vertical moves
-of one level costing ``climb_weight`` or ``descent_weight`` per metre. The cheapest route may climb over a low
-building instead of going around it, and may end on a rooftop (``goal_alt_m`` at least the roof plus the
-margin). A leg is accepted when, over every cell of its 2D supercover, it stays at or above the cell's floor
-(:func:`leg_free`), so a leg never dips into a grown box; pruning uses the same test, so the flown route may
-climb diagonally.
+``grid3d`` finds the cheapest route over cells ``(north_idx, east_idx, level)`` with ``level`` altitudes
+``base + k * dz`` (``dz <= 5`` m, chosen so the start and goal altitudes are both levels, up to the first level
+above every obstacle): 8-connected horizontal moves at one level (no diagonal past a blocked side cell), and
+vertical moves of one level costing ``climb_weight`` or ``descent_weight`` per metre. The cheapest route may climb
+over a low building instead of going around it, and may end on a rooftop (``goal_alt_m`` at least the roof plus
+the margin).
 
-Memory: the search workspace has ``levels * cells`` entries (44 x 921 x 921 on the SF map at 5 m), allocated
-per query with ``np.zeros`` / ``np.empty`` so the operating system maps only the pages the search touches.
+It does not search the voxels. Free space only grows with altitude (``floor_m <= z`` stays true above ``z``), so a
+route whose highest level is ``L`` can climb to ``L`` over the start, fly all its horizontal moves at ``L`` and
+descend over the goal without costing more: its horizontal moves are all free at ``L``, and it must climb and
+descend at least that much anyway. The optimum is therefore
+
+    min over L >= max(start level, goal level) of D_L + climb_weight (z_L - z_start) + descent_weight (z_L - z_goal)
+
+with ``D_L`` the 2D optimum at level ``L`` (jump point search on ``floor_m > z_L``). Levels are tried upwards,
+each search bounded by the best total so far, until the vertical cost plus the straight-line (octile) distance
+alone reaches it. A leg is accepted when, over every cell of its 2D supercover, it stays at or above the cell's
+floor (:func:`leg_free`), so a leg never dips into a grown box; the route is string-pulled with the same test, so
+the flown route may climb diagonally.
 """
 
 from __future__ import annotations
@@ -24,18 +33,24 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from skyroute.planning import kernels
-from skyroute.planning.cspace import cell_to_map, create_grid, map_to_cell, nearest_free_cell, snap_start_cell
+from skyroute.planning.cspace import (
+    cell_to_map,
+    create_grid,
+    grid_extent,
+    map_to_cell,
+    nearest_free_cell,
+    snap_start_cell,
+)
 from skyroute.planning.errors import BlockedCellError, NoPathError, OutsideGridError
+from skyroute.planning.kernels import njit
 from skyroute.planning.plan import Plan
 from skyroute.planning.pruning import headings_along, path_length
 
-SQRT2 = math.sqrt(2.0)
 MAX_LEVEL_STEP_M = 5.0
 
 
@@ -43,21 +58,12 @@ MAX_LEVEL_STEP_M = 5.0
 # Height map
 
 
-@njit(cache=True)
-def _paint_max(floor, n_lo, n_hi, e_lo, e_hi, value):
-    for k in range(n_lo.shape[0]):
-        for i in range(n_lo[k], n_hi[k]):
-            for j in range(e_lo[k], e_hi[k]):
-                if value[k] > floor[i, j]:
-                    floor[i, j] = value[k]
-
-
 def floor_map(obstacles: np.ndarray, safety_m: float) -> tuple[np.ndarray, int, int]:
     """Lowest free altitude per cell: ``(floor_m, north_offset, east_offset)``.
 
     ``floor_m[i, j] > z`` equals ``create_grid(obstacles, z, safety_m)[0][i, j]`` for any altitude ``z``: the
-    same footprints grown by ``safety_m`` and rounded outwards to whole cells, each painted with its
-    ``top + safety_m``.
+    same footprints grown by ``safety_m`` with rounded corners, each painted with its ``top + safety_m``
+    (``kernels.raster.rasterise_max``).
 
     >>> boxes = np.array([[2.0, 2.0, 5.0, 1.0, 1.0, 5.0], [0.5, 0.5, 1.0, 0.5, 0.5, 1.0]])
     >>> floor, north_offset, east_offset = floor_map(boxes, safety_m=0)
@@ -65,17 +71,13 @@ def floor_map(obstacles: np.ndarray, safety_m: float) -> tuple[np.ndarray, int, 
     [[2.0, -inf, -inf], [-inf, 10.0, 10.0], [-inf, 10.0, 10.0]]
     """
     obstacles = np.asarray(obstacles, dtype=np.float64)
-    _, north_offset, east_offset = create_grid(obstacles, -math.inf, safety_m)  # shape and offsets only
+    north_offset, east_offset, n, m = grid_extent(obstacles)
+    if not (math.isfinite(safety_m) and safety_m >= 0):
+        raise ValueError(f"safety_m must be finite and >= 0, got {safety_m}")
     north, east, alt, d_north, d_east, d_alt = obstacles.T
-    north_size = int(np.ceil(np.max(north + d_north))) - north_offset
-    east_size = int(np.ceil(np.max(east + d_east))) - east_offset
-    s = safety_m
-    n_lo = np.clip(np.floor(north - d_north - s - north_offset), 0, north_size).astype(np.int64)
-    n_hi = np.clip(np.ceil(north + d_north + s - north_offset), 0, north_size).astype(np.int64)
-    e_lo = np.clip(np.floor(east - d_east - s - east_offset), 0, east_size).astype(np.int64)
-    e_hi = np.clip(np.ceil(east + d_east + s - east_offset), 0, east_size).astype(np.int64)
-    floor = np.full((north_size, east_size), -np.inf)
-    _paint_max(floor, n_lo, n_hi, e_lo, e_hi, alt + d_alt + s)
+    floor = kernels.rasterise_max(north - d_north, north + d_north, east - d_east, east + d_east,
+                                  alt + d_alt + safety_m, float(north_offset), float(east_offset),
+                                  float(safety_m), n, m)
     return floor, north_offset, east_offset
 
 
@@ -85,9 +87,12 @@ def floor_map(obstacles: np.ndarray, safety_m: float) -> tuple[np.ndarray, int, 
 
 def legs_clear_of_boxes(points: np.ndarray, obstacles: np.ndarray, safety_m: float) -> np.ndarray:
     """For each leg of the polyline ``points`` ``(K, 3)`` ``[north_m, east_m, altitude_m]``: True if the segment
-    stays out of the interior of every obstacle box grown by ``safety_m`` on all sides. Returns ``(K - 1,)`` bool.
+    stays out of every obstacle's grown prism (the 3D planners' collision rule). Returns ``(K - 1,)`` bool.
 
-    Slab test per leg, vectorised over the obstacles.
+    A box's grown prism is the set of points below ``top + safety_m`` whose horizontal distance to the box's
+    footprint is below ``safety_m`` (with no margin: inside the footprint and below the top), the same space
+    :func:`floor_map` blocks; touching it is allowed. Exact: the part of the leg below the lid is a 2D segment,
+    and its distance to the footprint rectangle is checked directly. Vectorised over the obstacles.
 
     >>> box = np.array([[0.0, 0.0, 5.0, 1.0, 1.0, 5.0]])           # 2 x 2 m, 10 m tall
     >>> legs_clear_of_boxes(np.array([[-5, 0, 5], [5, 0, 5], [5, 0, 20], [-5, 0, 12]]), box, 1.0).tolist()
@@ -95,25 +100,84 @@ def legs_clear_of_boxes(points: np.ndarray, obstacles: np.ndarray, safety_m: flo
     """
     points = np.asarray(points, dtype=np.float64)
     obstacles = np.asarray(obstacles, dtype=np.float64)
-    centre = obstacles[:, [0, 1, 2]]
-    half = obstacles[:, [3, 4, 5]] + safety_m
-    lo, hi = centre - half, centre + half
+    lo = obstacles[:, :2] - obstacles[:, 3:5]
+    hi = obstacles[:, :2] + obstacles[:, 3:5]
+    lid = obstacles[:, 2] + obstacles[:, 5] + safety_m
     clear = np.ones(max(len(points) - 1, 0), dtype=bool)
     for k in range(len(clear)):
-        p0, d = points[k], points[k + 1] - points[k]
-        enter = np.zeros(len(obstacles))
-        leave = np.ones(len(obstacles))
-        inside = np.ones(len(obstacles), dtype=bool)
-        for axis in range(3):
-            if d[axis] == 0.0:
-                inside &= (lo[:, axis] < p0[axis]) & (p0[axis] < hi[:, axis])
-            else:
-                t1 = (lo[:, axis] - p0[axis]) / d[axis]
-                t2 = (hi[:, axis] - p0[axis]) / d[axis]
-                enter = np.maximum(enter, np.minimum(t1, t2))
-                leave = np.minimum(leave, np.maximum(t1, t2))
-        clear[k] = not np.any(inside & (enter < leave))
+        p0, p1 = points[k], points[k + 1]
+        dz = p1[2] - p0[2]
+        # The part of the leg below each lid: t in [t0, t1] of p0 + t (p1 - p0).
+        if dz == 0.0:
+            t0 = np.where(p0[2] < lid, 0.0, np.inf)
+            t1 = np.ones(len(obstacles))
+        elif dz > 0.0:
+            t0, t1 = np.zeros(len(obstacles)), np.minimum((lid - p0[2]) / dz, 1.0)
+        else:
+            t0, t1 = np.maximum((lid - p0[2]) / dz, 0.0), np.ones(len(obstacles))
+        below = t0 < t1
+        if not below.any():
+            continue
+        d = p1[:2] - p0[:2]
+        a = p0[:2] + t0[below, None] * d
+        b = p0[:2] + t1[below, None] * d
+        if safety_m > 0:
+            inside = segment_rectangle_distance(a, b, lo[below], hi[below]) < safety_m
+        else:
+            inside = _segment_enters_open_rectangle(a, b, lo[below], hi[below])
+        clear[k] = not inside.any()
     return clear
+
+
+def segment_rectangle_distance(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Euclidean distance between 2D segments ``a``-``b`` and closed rectangles ``[lo, hi]``, row by row ``(M,)``.
+
+    Zero if a segment meets its rectangle; otherwise the nearest pair is an endpoint against the rectangle or a
+    rectangle corner against the segment.
+    """
+    def point_to_rectangle(p):
+        gap = np.maximum(np.maximum(lo - p, p - hi), 0.0)
+        return np.hypot(gap[:, 0], gap[:, 1])
+
+    d = b - a
+    length2 = (d * d).sum(axis=1)
+    best = np.minimum(point_to_rectangle(a), point_to_rectangle(b))
+    for corner in (lo, hi, np.column_stack([lo[:, 0], hi[:, 1]]), np.column_stack([hi[:, 0], lo[:, 1]])):
+        t = np.clip(np.where(length2 > 0, ((corner - a) * d).sum(axis=1) / np.where(length2 > 0, length2, 1), 0), 0, 1)
+        nearest = a + t[:, None] * d
+        best = np.minimum(best, np.hypot(*(corner - nearest).T))
+    return np.where(_segment_meets_rectangle(a, b, lo, hi), 0.0, best)
+
+
+def _clip_interval(a: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """Liang-Barsky: the ``[enter, leave]`` part of ``t in [0, 1]`` where ``a + t d`` is inside ``[lo, hi]``,
+    and a mask of the rows whose segment runs along an axis outside the slab (never inside)."""
+    enter, leave = np.zeros(len(a)), np.ones(len(a))
+    outside = np.zeros(len(a), dtype=bool)
+    for axis in range(2):
+        still = d[:, axis] == 0.0
+        outside |= still & ((a[:, axis] < lo[:, axis]) | (a[:, axis] > hi[:, axis]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1 = (lo[:, axis] - a[:, axis]) / d[:, axis]
+            t2 = (hi[:, axis] - a[:, axis]) / d[:, axis]
+        enter = np.where(still, enter, np.maximum(enter, np.minimum(t1, t2)))
+        leave = np.where(still, leave, np.minimum(leave, np.maximum(t1, t2)))
+    return enter, leave, outside
+
+
+def _segment_meets_rectangle(a, b, lo, hi) -> np.ndarray:
+    enter, leave, outside = _clip_interval(a, b - a, lo, hi)
+    return ~outside & (enter <= leave)
+
+
+def _segment_enters_open_rectangle(a, b, lo, hi) -> np.ndarray:
+    d = b - a
+    enter, leave, _ = _clip_interval(a, d, lo, hi)
+    strictly = np.ones(len(a), dtype=bool)
+    for axis in range(2):
+        still = d[:, axis] == 0.0
+        strictly &= ~still | ((lo[:, axis] < a[:, axis]) & (a[:, axis] < hi[:, axis]))
+    return strictly & (enter < leave)
 
 
 @njit(cache=True)
@@ -178,97 +242,9 @@ def prune_mask_3d(floor, path):
     return keep
 
 
+
 # --------------------------------------------------------------------------------------------------------------
-# Search
-
-
-@njit(cache=True)
-def _h(i, j, k, gi, gj, gk, levels, climb_weight, descent_weight):
-    di, dj = abs(i - gi), abs(j - gj)
-    dz = levels[gk] - levels[k]
-    vertical = dz * climb_weight if dz > 0 else -dz * descent_weight
-    return (SQRT2 - 1.0) * min(di, dj) + max(di, dj) + vertical
-
-
-@njit(cache=True)
-def astar3d(floor, levels, start, goal, climb_weight, descent_weight, state, g_cost, move):
-    """A* over ``(level, north_idx, east_idx)`` cells; ``start``/``goal`` are ``(i, j, k)`` int arrays.
-
-    ``state`` (zeros), ``g_cost`` and ``move`` are flat workspaces of ``levels.size * floor.size`` entries (the
-    caller allocates them lazily, so untouched pages cost nothing). Returns ``(cells (K, 3), cost, expanded)``,
-    ``cost`` -1 if unreachable.
-    """
-    n, m = floor.shape
-    di = np.array([1, -1, 0, 0, 1, 1, -1, -1, 0, 0])
-    dj = np.array([0, 0, 1, -1, 1, -1, 1, -1, 0, 0])
-    dk = np.array([0, 0, 0, 0, 0, 0, 0, 0, 1, -1])
-    plane = n * m
-    si, sj, sk = start[0], start[1], start[2]
-    gi, gj, gk = goal[0], goal[1], goal[2]
-    s = sk * plane + si * m + sj
-    t = gk * plane + gi * m + gj
-    hf, hg, hv = kernels.new_heap()
-    state[s], g_cost[s], move[s] = 1, 0.0, -1
-    hf, hg, hv, size = kernels.heap_push(
-        hf, hg, hv, 0, _h(si, sj, sk, gi, gj, gk, levels, climb_weight, descent_weight), 0.0, s
-    )
-    expanded = 0
-    found = False
-    while size > 0:
-        v, fv, gv, size = kernels.heap_pop(hf, hg, hv, size)
-        if state[v] == 2 or gv > g_cost[v]:
-            continue
-        state[v] = 2
-        expanded += 1
-        if v == t:
-            found = True
-            break
-        k, rest = v // plane, v % plane
-        i, j = rest // m, rest % m
-        z = levels[k]
-        for d in range(10):
-            wi, wj, wk = i + di[d], j + dj[d], k + dk[d]
-            if not (0 <= wi < n and 0 <= wj < m and 0 <= wk < levels.shape[0]):
-                continue
-            zw = levels[wk]
-            if floor[wi, wj] > zw:
-                continue
-            if d < 4:
-                step = 1.0
-            elif d < 8:
-                if floor[wi, j] > z or floor[i, wj] > z:
-                    continue
-                step = SQRT2
-            elif d == 8:
-                step = (zw - z) * climb_weight
-            else:
-                step = (z - zw) * descent_weight
-            w = wk * plane + wi * m + wj
-            if state[w] == 2:
-                continue
-            gw = gv + step
-            if state[w] == 1 and gw >= g_cost[w]:
-                continue
-            state[w], g_cost[w], move[w] = 1, gw, d
-            f = gw + _h(wi, wj, wk, gi, gj, gk, levels, climb_weight, descent_weight)
-            hf, hg, hv, size = kernels.heap_push(hf, hg, hv, size, f, gw, w)
-    if not found:
-        return np.empty((0, 3), np.int64), -1.0, expanded
-    count = 1
-    v = t
-    while v != s:
-        d = move[v]
-        v -= dk[d] * plane + di[d] * m + dj[d]
-        count += 1
-    cells = np.empty((count, 3), np.int64)
-    v = t
-    for c in range(count - 1, -1, -1):
-        k, rest = v // plane, v % plane
-        cells[c, 0], cells[c, 1], cells[c, 2] = rest // m, rest % m, k
-        if c > 0:
-            d = move[v]
-            v -= dk[d] * plane + di[d] * m + dj[d]
-    return cells, g_cost[t], expanded
+# Endpoints and headings
 
 
 def _check_cell(floor: np.ndarray, which: str, cell: tuple[int, int], altitude_m: float) -> tuple[int, int]:
@@ -327,6 +303,10 @@ def headings_3d(points: np.ndarray) -> np.ndarray:
     return headings
 
 
+# --------------------------------------------------------------------------------------------------------------
+# The planner
+
+
 @dataclass(frozen=True)
 class Grid3DPlanner:
     """``grid3d`` on one map and margin; the flight altitude ``altitude_m`` is the start's (and default goal's).
@@ -342,6 +322,7 @@ class Grid3DPlanner:
     safety_m: float
     climb_weight: float = 1.5
     descent_weight: float = 1.0
+    _levels: dict = field(default_factory=dict, repr=False, compare=False)  # altitude -> the level's search grid
 
     @classmethod
     def build(cls, obstacles: np.ndarray, altitude_m: float, safety_m: float, **weights) -> Grid3DPlanner:
@@ -354,10 +335,14 @@ class Grid3DPlanner:
         low, high = sorted((self.altitude_m, goal_alt_m))
         steps = math.ceil((high - low) / MAX_LEVEL_STEP_M)
         dz = (high - low) / steps if steps else MAX_LEVEL_STEP_M
-        finite = self.floor[np.isfinite(self.floor)]
-        top = max(high, float(finite.max()) if finite.size else high)
+        top = max(high, self._highest_floor)
         count = int(math.ceil((top - low) / dz - 1e-9)) + 1
         return low + dz * np.arange(count)
+
+    @property
+    def _highest_floor(self) -> float:
+        finite = self.floor[np.isfinite(self.floor)]
+        return float(finite.max()) if finite.size else -math.inf
 
     def plan(
         self,
@@ -381,18 +366,12 @@ class Grid3DPlanner:
         start_level = int(np.argmin(np.abs(levels - self.altitude_m)))
         goal_level = int(np.argmin(np.abs(levels - goal_alt)))
         t0 = time.perf_counter()
-        voxels = len(levels) * self.floor.size
-        state = np.zeros(voxels, np.uint8)  # calloc: pages appear only where the search goes
-        g_cost = np.empty(voxels, np.float64)
-        move = np.empty(voxels, np.int8)
-        cells, cost, expanded = astar3d(
-            self.floor, levels, np.array([*start_cell, start_level]), np.array([*goal_cell, goal_level]),
-            self.climb_weight, self.descent_weight, state, g_cost, move,
-        )
+        best, expanded, tried = self._best_level(levels, start_level, goal_level, start_cell, goal_cell)
         search_ms = (time.perf_counter() - t0) * 1e3
-        if cost < 0:
-            raise NoPathError(start_cell, goal_cell, int(expanded))
-        path = np.column_stack([cells[:, :2].astype(np.float64), levels[cells[:, 2]]])
+        if best is None:
+            raise NoPathError(start_cell, goal_cell, expanded)
+        cost, level, cells = best
+        path = self._route(cells, levels[start_level], levels[level], levels[goal_level])
         pruned = path[prune_mask_3d(self.floor, path)]
         points = np.column_stack([pruned[:, 0] + self.north_offset + 0.5, pruned[:, 1] + self.east_offset + 0.5,
                                   pruned[:, 2]])
@@ -412,9 +391,53 @@ class Grid3DPlanner:
             extra={
                 "levels": int(len(levels)),
                 "level_step_m": round(float(levels[1] - levels[0]), 3) if len(levels) > 1 else 0.0,
+                "levels_searched": tried,
+                "cruise_altitude_m": float(levels[level]),
                 "climb_weight": self.climb_weight,
                 "descent_weight": self.descent_weight,
                 "max_altitude_m": float(points[:, 2].max()),
             },
-            structure={},
+            structure={"floor": (self.floor, self.north_offset, self.east_offset)},  # for plots
         )
+
+    def _best_level(self, levels, start_level, goal_level, start_cell, goal_cell):
+        """``((cost, level, flat 2D path), expanded, levels searched)`` for the cheapest cruise level, or
+        ``(None, expanded, searched)`` if no level connects the two cells."""
+        width = self.floor.shape[1] + 2
+        start = (start_cell[0] + 1) * width + start_cell[1] + 1
+        goal = (goal_cell[0] + 1) * width + goal_cell[1] + 1
+        straight = kernels.octile(start_cell[0], start_cell[1], goal_cell[0], goal_cell[1])
+        z_start, z_goal = levels[start_level], levels[goal_level]
+        best, expanded, tried = None, 0, 0
+        for level in range(max(start_level, goal_level), len(levels)):
+            z = levels[level]
+            vertical = self.climb_weight * (z - z_start) + self.descent_weight * (z - z_goal)
+            bound = math.inf if best is None else best[0] - vertical
+            if straight >= bound:
+                break  # even a straight flight at this level (or higher) costs more than the best so far
+            flat, cost, count, _ = kernels.jps(*self._level_grid(float(z)), width, start, goal, bound)
+            expanded += count
+            tried += 1
+            if cost >= 0:
+                best = (cost + vertical, level, np.column_stack((flat // width - 1, flat % width - 1)))
+        return best, expanded, tried
+
+    def _level_grid(self, z: float) -> tuple:
+        """The scan tables of the cells blocked at altitude ``z``, as ``kernels.jps`` takes them; built once per
+        altitude (a query at the planner's own altitude reuses the same levels)."""
+        if z not in self._levels:
+            blocked = self.floor > z
+            self._levels[z] = (kernels.scan_tables(kernels.pack_rows(blocked)),
+                               kernels.scan_tables(kernels.pack_columns(blocked)))
+        return self._levels[z]
+
+    @staticmethod
+    def _route(cells: np.ndarray, z_start: float, z_cruise: float, z_goal: float) -> np.ndarray:
+        """Rows ``[north_idx, east_idx, altitude_m]``: climb over the start, fly ``cells`` at the cruise level,
+        descend over the goal."""
+        path = np.column_stack([cells.astype(np.float64), np.full(len(cells), z_cruise)])
+        if z_start != z_cruise:
+            path = np.vstack([[cells[0, 0], cells[0, 1], z_start], path])
+        if z_goal != z_cruise:
+            path = np.vstack([path, [cells[-1, 0], cells[-1, 1], z_goal]])
+        return path

@@ -80,8 +80,18 @@ def _max_offset(a: np.ndarray, b: np.ndarray, pts: np.ndarray) -> float:
 
 
 def prune_path(grid: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Line-of-sight pruning (which also removes collinear cells): ``(K, 2)`` cells -> ``(M, 2)`` cells."""
-    return prune_line_of_sight(grid, cells)
+    """The two pruning steps: line-of-sight string pulling (:func:`prune_line_of_sight`), then the cells it kept
+    that lie exactly on the line between their neighbours (:func:`prune_collinear` with a 1e-9 m tolerance:
+    the greedy pass can keep one when a wall blocks a longer leg). ``(K, 2)`` cells -> ``(M, 2)`` cells.
+
+    Dropping an exactly collinear cell is safe: the merged leg is the union of the two legs it replaces, so it
+    touches the same cells.
+
+    >>> grid = np.zeros((4, 9), dtype=bool)
+    >>> prune_path(grid, np.array([[0, k] for k in range(9)])).tolist()
+    [[0, 0], [0, 8]]
+    """
+    return prune_collinear(prune_line_of_sight(grid, cells), tolerance_m=1e-9)
 
 
 def path_length(points: np.ndarray) -> float:

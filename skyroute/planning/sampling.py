@@ -9,12 +9,15 @@ weighted by 3D length.
 
 Query: link the start and goal to the nearest nodes they can reach by a free leg (or by a vertical leg and a
 level one, for ends outside the sampled altitude band such as a rooftop), A* (networkx, Euclidean heuristic),
-then string-pull with the same leg test. The roadmap is random: a query can fail where a path
-exists (``NoPathError``); ``bench/bench_planners.py`` reports how often.
+then string-pull with the same leg test. The roadmap is random, so it can miss a route that exists; when it
+does, the query falls back to the complete ``grid3d`` search on the same height map (``extra["fallback"]``), so
+"no path" means there is none. ``fallback=False`` reports the roadmap's own failures instead (``RoadmapNoPathError``,
+which says to try another seed or more samples); ``bench/bench_planners.py`` measures how often that happens.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -27,6 +30,18 @@ from skyroute.planning.plan import Plan
 from skyroute.planning.pruning import path_length
 
 _LINK_CANDIDATES = (16, 64)
+
+
+class RoadmapNoPathError(NoPathError):
+    """The roadmap does not connect the start and the goal, though a path may exist (another seed or more
+    samples may find it)."""
+
+    def __init__(self, start: tuple[int, int], goal: tuple[int, int], seed: int, samples: int):
+        super().__init__(start, goal, 0)
+        self.args = (
+            f"the {samples}-sample roadmap (seed {seed}) does not connect cell {start} to cell {goal}; try another "
+            f"seed or more samples",
+        )
 
 
 @dataclass(frozen=True)
@@ -153,11 +168,15 @@ class ProbabilisticRoadmap:
         *,
         goal_alt_m: float | None = None,
         snap_start: bool = False,
+        fallback: bool = True,
     ) -> Plan:
         """Route from ``start_ne`` at ``altitude_m`` to ``goal_ne`` at ``goal_alt_m`` (default: the same).
 
-        Raises ``OutsideGridError``, ``BlockedCellError`` or ``NoPathError`` (also when the roadmap does not
-        connect the two, though a path may exist).
+        If the roadmap does not connect the two, the complete ``grid3d`` search on the same height map plans the
+        route (``extra["fallback"] == "grid3d"``), unless ``fallback`` is False.
+
+        Raises ``OutsideGridError``, ``BlockedCellError``, ``NoPathError`` (no route exists), or, without
+        ``fallback``, ``RoadmapNoPathError`` when the roadmap misses a route.
         """
         import networkx as nx
 
@@ -197,9 +216,13 @@ class ProbabilisticRoadmap:
                 weight="weight",
             )
         except (nx.NetworkXNoPath, nx.NodeNotFound):
-            raise NoPathError(start_cell, goal_cell, 0) from None
+            route = None
         finally:
             graph.remove_nodes_from(added)
+        if route is None:
+            if not fallback:
+                raise RoadmapNoPathError(start_cell, goal_cell, self.extra["seed"], self.extra["nodes"])
+            return self._fallback(start_ne, goal_ne, goal_alt_m, snap_start)
         search_ms = (time.perf_counter() - t0) * 1e3
         path = np.array([position(v) for v in route])
         path = path[np.concatenate(([True], (np.diff(path, axis=0) != 0).any(axis=1)))]  # a node on the start
@@ -223,14 +246,23 @@ class ProbabilisticRoadmap:
         )
 
 
+    def _fallback(self, start_ne, goal_ne, goal_alt_m, snap_start) -> Plan:
+        """The complete search on this roadmap's height map, reported as a ``prm`` plan with ``fallback``."""
+        search = g3.Grid3DPlanner(self.obstacles, self.floor, self.north_offset, self.east_offset, self.altitude_m,
+                               self.safety_m)
+        result = search.plan(start_ne, goal_ne, goal_alt_m=goal_alt_m, snap_start=snap_start)
+        extra = {**self.extra, "fallback": "grid3d", "cruise_altitude_m": result.extra["cruise_altitude_m"]}
+        return dataclasses.replace(result, planner="prm", extra=extra, structure=self.structure())
+
+
 def connection_rate(
     roadmap: ProbabilisticRoadmap, queries: Sequence[tuple[Sequence[float], Sequence[float]]]
 ) -> float:
-    """Fraction of ``queries`` (pairs of map points) that the roadmap connects."""
+    """Fraction of ``queries`` (pairs of map points) that the roadmap itself connects (no fallback)."""
     connected = 0
     for start_ne, goal_ne in queries:
         try:
-            roadmap.plan(start_ne, goal_ne)
+            roadmap.plan(start_ne, goal_ne, fallback=False)
         except NoPathError:
             continue
         connected += 1

@@ -1,4 +1,5 @@
-"""Optimal 8-connected grid search: :class:`GridPlanner` (compiled JPS / A*) and the classic ``a_star``.
+"""Optimal 8-connected grid search: :class:`GridPlanner` (compiled JPS / A*), the classic ``a_star`` and the
+readable Python A* it runs for a custom heuristic.
 
 Moves: 8-connected, straight cost 1, diagonal cost sqrt(2). A diagonal move is only allowed when both orthogonal
 neighbours it passes are free, so a path never squeezes between two blocked cells that touch at a corner.
@@ -6,6 +7,9 @@ neighbours it passes are free, so a path never squeezes between two blocked cell
 
 from __future__ import annotations
 
+import heapq
+import itertools
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -19,23 +23,27 @@ from skyroute.planning.errors import BlockedCellError, NoPathError, OutsideGridE
 @dataclass(frozen=True)
 class GridPath:
     """A searched path: ``cells`` ``(K, 2)`` int array from start to goal, optimal ``cost`` in cells (= metres at
-    1 m resolution), and the number of cells ``expanded``."""
+    1 m resolution), the number of nodes ``expanded``, and ``state_entries``, the size of the search's state table
+    (the query's memory, which depends on the cells searched, not on the grid)."""
 
     cells: np.ndarray
     cost: float
     expanded: int
+    state_entries: int = 0
 
 
 class GridPlanner:
     """Optimal 8-connected search on one occupancy grid, reusable across queries.
 
     ``method="jps"`` (default) is jump point search: A* that skips symmetric paths, same optimal cost, several
-    times faster on city maps. ``method="astar"`` is the textbook A* (see ``kernels.py`` for both loops).
+    times faster on city maps. ``method="astar"`` is the textbook A* (see ``kernels/gridsearch.py`` for both).
     ``expanded`` counts expanded search nodes: every cell for A*, only jump points for JPS.
 
-    Building the planner allocates its workspace once (O(grid)); each :meth:`plan` then touches only the cells
-    it explores, so a 10 m query costs microseconds even on a 10 km map. The first call in a fresh environment
-    compiles the kernels (a few seconds); numba caches the machine code on disk, so later processes skip that.
+    Building the planner packs the grid into bit tables for JPS's scans (a byte per cell in all; the textbook
+    A* keeps a padded byte copy instead); a query keeps its state in a hash table sized by the cells it
+    stores, so a 10 m query costs microseconds and kilobytes even on a 10 km map. The first call in a fresh
+    environment compiles the kernels (a few seconds); numba caches the machine code on disk, so later processes
+    skip that.
 
     Examples
     --------
@@ -61,16 +69,13 @@ class GridPlanner:
         self.grid = grid
         n, m = grid.shape
         self._width = m + 2
-        padded = np.ones((n + 2, m + 2), dtype=np.bool_)
-        padded[1:-1, 1:-1] = grid
-        self._blocked = padded.ravel()
-        size = padded.size
-        self._g = np.empty(size, np.float64)
-        self._parent = np.empty(size, np.int64)
-        self._seen = np.zeros(size, np.int32)
-        self._closed = np.zeros(size, np.int32)
-        self._query = 0
-        kernels.warm_up()
+        if method == "jps":  # the grid as bits, rows and columns, with what its straight scans need (kernels.bits)
+            self._bits = (kernels.scan_tables(kernels.pack_rows(grid)), kernels.scan_tables(kernels.pack_columns(grid)))
+        else:
+            padded = np.ones((n + 2, m + 2), dtype=np.bool_)
+            padded[1:-1, 1:-1] = grid
+            self._blocked = padded.ravel()
+        _load(method)
 
     def _flat(self, cell: tuple[int, int]) -> int:
         return (cell[0] + 1) * self._width + cell[1] + 1
@@ -90,33 +95,42 @@ class GridPlanner:
             raise BlockedCellError(which, cell, nearest_free_cell(self.grid, cell))
         return cell
 
-    def plan(self, start: Sequence[int], goal: Sequence[int]) -> GridPath:
+    def plan(self, start: Sequence[int], goal: Sequence[int], max_cost: float = math.inf) -> GridPath:
         """Cheapest path from ``start`` to ``goal`` (``(north_idx, east_idx)`` cells).
+
+        ``max_cost`` bounds the search: a goal that costs at least that much counts as unreachable.
 
         Raises
         ------
         OutsideGridError, BlockedCellError
             If ``start`` or ``goal`` is off the grid or blocked.
         NoPathError
-            If no path connects them.
+            If no path connects them (within ``max_cost``).
         """
         start = self.check_cell("start", start)
         goal = self.check_cell("goal", goal)
-        self._query += 1
-        if self._query == np.iinfo(np.int32).max:  # stamps would wrap: start again from clean arrays
-            self._seen[:] = 0
-            self._closed[:] = 0
-            self._query = 1
         s, t = self._flat(start), self._flat(goal)
-        search = self.METHODS[self.method]
-        cost, expanded = search(
-            self._blocked, self._width, s, t, self._query, self._g, self._parent, self._seen, self._closed
-        )
+        if self.method == "jps":
+            flat, cost, expanded, entries = kernels.jps(*self._bits, self._width, s, t, float(max_cost))
+        else:
+            flat, cost, expanded, entries = kernels.astar(self._blocked, self._width, s, t, float(max_cost))
         if cost < 0:
             raise NoPathError(start, goal, expanded)
-        flat = kernels.trace_path(self._parent, t, self._width)
         cells = np.column_stack((flat // self._width - 1, flat % self._width - 1))
-        return GridPath(cells, float(cost), int(expanded))
+        return GridPath(cells, float(cost), int(expanded), int(entries))
+
+
+def _load(method: str) -> None:
+    """Load (or compile) the kernels of ``method`` with the argument types :meth:`GridPlanner.plan` uses, so that
+    the first real query times only its search."""
+    grid = np.zeros((1, 1), np.bool_)
+    if method == "jps":
+        tables = (kernels.scan_tables(kernels.pack_rows(grid)), kernels.scan_tables(kernels.pack_columns(grid)))
+        kernels.jps(*tables, 3, 4, 4, math.inf)
+    else:
+        padded = np.ones((3, 3), np.bool_)
+        padded[1, 1] = False
+        kernels.astar(padded.ravel(), 3, 4, 4, math.inf)
 
 
 def heuristic(position: Sequence[float], goal_position: Sequence[float]) -> float:
@@ -129,10 +143,91 @@ def a_star(
 ) -> tuple[list[tuple[int, int]], float]:
     """Classic-exercise entry point: ``(path, cost)`` with ``path`` a list of ``(north_idx, east_idx)`` tuples.
 
-    ``h`` is accepted for compatibility with the classic signature and ignored: the search always uses the
-    octile distance, the exact cost on an empty 8-connected grid, which is consistent, so the result is optimal
-    (any admissible ``h``, such as the classic Euclidean :func:`heuristic`, has the same optimal cost). For many
-    queries on one grid, build a :class:`GridPlanner` once instead.
+    ``h(position, goal_position) -> float`` is the heuristic, as in the exercise. With ``h=None`` or the classic
+    :func:`heuristic` itself, the compiled jump point search runs (:class:`GridPlanner`: the same optimal cost,
+    around a thousand times faster than Python). With any other callable, :func:`python_a_star` runs: a readable
+    Python A* that calls ``h`` for every cell it reaches, so a student who edits the heuristic sees the search
+    change. Any admissible ``h`` (never above the true remaining cost, e.g. Euclidean or octile distance) gives
+    the optimal cost; an inadmissible one (say ``3 * heuristic``) expands fewer cells and may return a longer
+    path. For many queries on one grid, build a :class:`GridPlanner` once instead.
+
+    Raises
+    ------
+    OutsideGridError, BlockedCellError, NoPathError
+        As :meth:`GridPlanner.plan`.
+
+    Examples
+    --------
+    >>> grid = np.zeros((3, 3), dtype=bool)
+    >>> a_star(grid, heuristic, (0, 0), (2, 2))[0]
+    [(0, 0), (1, 1), (2, 2)]
+    >>> a_star(grid, lambda position, goal: 0.0, (0, 0), (2, 2))[0]     # Dijkstra: same optimal path
+    [(0, 0), (1, 1), (2, 2)]
     """
-    path = GridPlanner(np.asarray(grid, dtype=bool)).plan(start, goal)
+    grid = np.asarray(grid, dtype=bool)
+    if h is None or h is heuristic:
+        path = GridPlanner(grid).plan(start, goal)
+    else:
+        path = python_a_star(grid, h, start, goal)
     return [(int(i), int(j)) for i, j in path.cells], path.cost
+
+
+#: The 8 moves ``(north step, east step, cost)``.
+MOVES = ((1, 0, 1.0), (-1, 0, 1.0), (0, 1, 1.0), (0, -1, 1.0),
+         (1, 1, math.sqrt(2)), (1, -1, math.sqrt(2)), (-1, 1, math.sqrt(2)), (-1, -1, math.sqrt(2)))
+
+
+def python_a_star(grid: np.ndarray, h: Callable, start: Sequence[int], goal: Sequence[int]) -> GridPath:
+    """A* in plain Python on the same graph as :class:`GridPlanner`, calling ``h(cell, goal)`` for its heuristic.
+
+    The open list is a heap of ``(g + h, order, g, cell)``; a cell popped with a ``g`` worse than the best known
+    is a stale entry and is skipped, and a cell reached more cheaply later is pushed again (even if it was
+    expanded before), so the result is optimal for every admissible ``h``, consistent or not. ``expanded``
+    counts the cells taken off the heap and expanded.
+
+    Raises
+    ------
+    OutsideGridError, BlockedCellError, NoPathError
+        As :meth:`GridPlanner.plan`.
+    """
+    grid = np.asarray(grid, dtype=bool)
+    n, m = grid.shape
+    start, goal = _checked(grid, "start", start), _checked(grid, "goal", goal)
+    best = {start: 0.0}
+    came_from: dict[tuple[int, int], tuple[int, int]] = {}
+    order = itertools.count()  # equal f: first pushed, first popped
+    queue = [(float(h(start, goal)), next(order), 0.0, start)]
+    expanded = 0
+    while queue:
+        _, _, g, cell = heapq.heappop(queue)
+        if g > best[cell]:
+            continue  # stale: a cheaper way to this cell was found after this entry was pushed
+        expanded += 1
+        if cell == goal:
+            path = [cell]
+            while path[-1] in came_from:
+                path.append(came_from[path[-1]])
+            return GridPath(np.array(path[::-1], dtype=np.int64), g, expanded, len(best))
+        i, j = cell
+        for di, dj, step in MOVES:
+            a, b = i + di, j + dj
+            if not (0 <= a < n and 0 <= b < m) or grid[a, b]:
+                continue
+            if di and dj and (grid[i + di, j] or grid[i, j + dj]):
+                continue  # no diagonal past a blocked corner
+            cost = g + step
+            if cost < best.get((a, b), math.inf):
+                best[(a, b)] = cost
+                came_from[(a, b)] = cell
+                heapq.heappush(queue, (cost + float(h((a, b), goal)), next(order), cost, (a, b)))
+    raise NoPathError(start, goal, expanded)
+
+
+def _checked(grid: np.ndarray, which: str, cell: Sequence[int]) -> tuple[int, int]:
+    cell = (int(cell[0]), int(cell[1]))
+    n, m = grid.shape
+    if not (0 <= cell[0] < n and 0 <= cell[1] < m):
+        raise OutsideGridError(which, cell, (n, m))
+    if grid[cell]:
+        raise BlockedCellError(which, cell, nearest_free_cell(grid, cell))
+    return cell

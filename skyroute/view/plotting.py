@@ -87,6 +87,64 @@ def draw_track(ax, track_ne: np.ndarray):
     return ax
 
 
+def draw_height_map(ax, floor: np.ndarray, north_offset: float, east_offset: float):
+    """The 2.5D height map: each cell's lowest free altitude (obstacle top plus margin over the rounded grown
+    footprint), coloured; cells free at any altitude are left blank. Returns the image (for a colour bar)."""
+    n, m = floor.shape
+    shown = np.where(np.isfinite(floor), floor, np.nan)
+    extent = (east_offset, east_offset + m, north_offset, north_offset + n)
+    return ax.imshow(shown, origin="lower", extent=extent, cmap="viridis", alpha=0.5, interpolation="nearest",
+                     zorder=1.5)
+
+
+def route_profile(points: np.ndarray, floor: np.ndarray, north_offset: float, east_offset: float,
+                  step_m: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Along a route ``(K, 3)`` ``[north_m, east_m, altitude_m]``: the horizontal distance of samples every
+    ``step_m``, the route's altitude there and the height map's floor under it (``-inf`` where free)."""
+    points = np.asarray(points, dtype=float)
+    distance, altitude, under = [0.0], [points[0, 2]], []
+    samples = [points[:1, :2]]
+    for a, b in zip(points[:-1], points[1:]):
+        length = float(np.hypot(*(b[:2] - a[:2])))
+        count = max(1, int(np.ceil(max(length, abs(b[2] - a[2])) / step_m)))
+        t = np.arange(1, count + 1) / count
+        samples.append(a[:2] + t[:, None] * (b[:2] - a[:2]))
+        distance.extend(distance[-1] + t * length)
+        altitude.extend(a[2] + t * (b[2] - a[2]))
+    cells = np.floor(np.concatenate(samples) - (north_offset, east_offset)).astype(int)
+    inside = (cells >= 0).all(axis=1) & (cells < floor.shape).all(axis=1)
+    under = np.full(len(cells), -np.inf)
+    under[inside] = floor[cells[inside, 0], cells[inside, 1]]
+    return np.array(distance), np.array(altitude), under
+
+
+def draw_profile(ax, points: np.ndarray, floor: np.ndarray, north_offset: float, east_offset: float):
+    """Altitude along the route against the distance flown over the ground, above the floor it must clear."""
+    distance, altitude, under = route_profile(points, floor, north_offset, east_offset)
+    ground = np.where(np.isfinite(under), under, 0.0)
+    ax.fill_between(distance, 0, ground, step="mid", color="0.6", label="floor: obstacle top + margin")
+    ax.plot(distance, altitude, "-", color="tab:blue", linewidth=1.5, label="route")
+    turns = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(np.asarray(points, float)[:, :2], axis=0).T))))
+    ax.plot(turns, np.asarray(points, float)[:, 2], "o", color="tab:blue", markersize=3)
+    ax.set_xlim(0, max(float(distance[-1]), 1.0))
+    ax.set_ylim(0, max(float(altitude.max()), float(ground.max())) * 1.15 + 1)
+    ax.set_xlabel("distance along the route (m)")
+    ax.set_ylabel("altitude (m)")
+    ax.legend(loc="upper right", fontsize=8)
+    return ax
+
+
+def plan_title(plan, altitude_m: float, safety_m: float, flown: bool = False) -> str:
+    """What a figure shows, in words: the planner, the altitudes it really flies, the margin."""
+    top = float(np.max(plan.waypoints[:, 2]))
+    track = " and the flown track" if flown else ""
+    if top > altitude_m + 1e-9 or float(np.min(plan.waypoints[:, 2])) < altitude_m - 1e-9:
+        end = float(plan.waypoints[-1, 2])
+        return (f"{plan.planner} plan{track}: from {altitude_m:g} m, up to {top:.0f} m, ending at {end:.0f} m; "
+                f"safety {safety_m:g} m")
+    return f"{plan.planner} plan{track} at {altitude_m:g} m, safety {safety_m:g} m"
+
+
 def save_plan_figure(
     path: str | Path,
     obstacles: np.ndarray,
@@ -96,22 +154,67 @@ def save_plan_figure(
     safety_m: float,
     track_ne: np.ndarray | None = None,
     grid: tuple[np.ndarray, float, float] | None = None,
+    floor: tuple[np.ndarray, float, float] | None = None,
     title: str = "",
 ) -> Path:
-    """Write a PNG of the map, the planner's structure, the plan and (optionally) the flown track and the
-    configuration space ``grid = (grid, north_offset, east_offset)``."""
-    fig, ax = plt.subplots(figsize=(9, 9), dpi=110)
+    """Write a PNG of the map, the planner's structure, the plan and (optionally) the flown track, over the
+    configuration space ``grid = (grid, north_offset, east_offset)`` of a plan at one altitude, or, for a route
+    that changes altitude, over the height map ``floor = (floor, north_offset, east_offset)`` with the route's
+    altitude profile below."""
+    rows = 2 if floor is not None else 1
+    fig, axes = plt.subplots(rows, 1, figsize=(9, 9 + 3 * (rows - 1)), dpi=110, squeeze=False,
+                             gridspec_kw={"height_ratios": [3, 1]} if rows == 2 else None)
+    ax = axes[0, 0]
     try:
-        draw_obstacles(ax, obstacles, altitude_m, safety_m)
-        if grid is not None:
+        draw_obstacles(ax, obstacles, None if floor is not None else altitude_m, safety_m)
+        if floor is not None:
+            image = draw_height_map(ax, *floor)
+            fig.colorbar(image, ax=ax, shrink=0.7, label="lowest free altitude (m)")
+            draw_profile(axes[1, 0], plan.waypoints[:, :3], *floor)
+        elif grid is not None:
             draw_grid(ax, *grid)
         draw_structure(ax, getattr(plan, "structure", {}) or {})
         draw_plan(ax, plan.raw_path_ne, plan.waypoints)
         if track_ne is not None:
             draw_track(ax, track_ne)
         ax.legend(loc="upper right", fontsize=8)
-        flown = " and the flown track" if track_ne is not None else ""
-        ax.set_title(title or f"{plan.planner} plan{flown} at {altitude_m:g} m, safety {safety_m:g} m")
+        ax.set_title(title or plan_title(plan, altitude_m, safety_m, flown=track_ne is not None))
+        fig.tight_layout()
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
+    return Path(path)
+
+
+def save_planner_gallery(
+    path: str | Path,
+    obstacles: np.ndarray,
+    plans: list,
+    *,
+    altitude_m: float,
+    safety_m: float,
+    grid: tuple[np.ndarray, float, float],
+    columns: int = 3,
+) -> Path:
+    """One panel per plan, side by side on the same map and configuration space: each planner's structure and
+    route, with its length and highest altitude in the panel's title."""
+    count = len(plans)
+    rows = (count + columns - 1) // columns
+    fig, axes = plt.subplots(rows, columns, figsize=(5 * columns, 5.2 * rows), dpi=90, squeeze=False)
+    try:
+        for ax, plan in zip(axes.ravel(), plans):
+            draw_obstacles(ax, obstacles, altitude_m, safety_m)
+            draw_grid(ax, *grid)
+            draw_structure(ax, getattr(plan, "structure", {}) or {})
+            draw_plan(ax, plan.raw_path_ne, plan.waypoints)
+            top = float(np.max(plan.waypoints[:, 2]))
+            height = f", up to {top:.0f} m" if top > altitude_m + 1e-9 else ""
+            ax.set_title(f"{plan.planner}: {plan.length_m:.0f} m, {len(plan.waypoints)} waypoints{height}",
+                         fontsize=10)
+            ax.tick_params(labelsize=7)
+        for ax in axes.ravel()[count:]:
+            ax.set_visible(False)
+        fig.suptitle(f"The same query with every planner, from {altitude_m:g} m, safety {safety_m:g} m")
         fig.tight_layout()
         fig.savefig(path)
     finally:

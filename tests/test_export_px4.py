@@ -1,0 +1,150 @@
+"""A ``.plan`` export flown by a real autopilot: PX4 SITL (SIH) in mission mode, from takeoff to landing at the
+goal. MAVSDK (its own C++ ``.plan`` importer) reads the file, uploads it, arms and starts the mission.
+
+The plan comes from the command line (``--plan-only --export``) on the project's map. PX4 is found by one rule
+(``$SKYROUTE_SHARED/sitl/px4`` if ``SKYROUTE_SHARED`` is set, else ``../shared/sitl/px4`` next to the project
+root) and skipped without it; the instance is a free one (its lock file and UDP ports unused), started in its own
+process group and stopped in ``finally``. PX4 SITL runs in real time: ~1 minute.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("SKYROUTE_SHARED") or ROOT.parent / "shared")
+PX4 = SHARED / "sitl" / "px4"
+sdk = pytest.importorskip("mavsdk.asyncio")
+
+pytestmark = [
+    pytest.mark.sitl,
+    pytest.mark.skipif(not (PX4 / "bin" / "px4").is_file(), reason=f"no PX4 SITL at {PX4}"),
+]
+
+LAT0, LON0 = 37.792480, -122.397450
+GOAL_NE = (99.5, 50.5)  # ~120 m from home on the project map, two legs
+WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
+
+
+def to_latlon(north_m: float, east_m: float) -> tuple[float, float]:
+    e2 = WGS84_F * (2 - WGS84_F)
+    w = 1 - e2 * math.sin(math.radians(LAT0)) ** 2
+    meridional, normal = WGS84_A_M * (1 - e2) / w**1.5, WGS84_A_M / math.sqrt(w)
+    return (LAT0 + math.degrees(north_m / meridional),
+            LON0 + math.degrees(east_m / (normal * math.cos(math.radians(LAT0)))))
+
+
+def distance_m(lat_a: float, lon_a: float, lat_b: float, lon_b: float) -> float:
+    north = math.radians(lat_b - lat_a) * 6.36e6
+    east = math.radians(lon_b - lon_a) * 6.36e6 * math.cos(math.radians(lat_a))
+    return math.hypot(north, east)
+
+
+def _udp_free(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def free_instance() -> int:
+    for instance in range(3, 10):  # 0..9 have distinct API ports; 0-2 are left for people running PX4 by hand
+        ports = (14540 + instance, 14580 + instance, 18570 + instance)
+        if not Path(f"/tmp/px4_lock-{instance}").exists() and all(_udp_free(p) for p in ports):
+            return instance
+    pytest.skip("no free PX4 SITL instance")
+
+
+async def _until(check, timeout_s: float, what: str):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = await check()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"PX4: {what} not within {timeout_s} s")
+        await asyncio.sleep(0.2)
+
+
+async def _fly(plan: Path, port: int) -> dict:
+    from mavsdk.asyncio.plugins.action import ActionAsync
+    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
+    from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+    config = sdk.Configuration.create_with_component_type(sdk.ComponentType.GROUND_STATION)
+    async with sdk.Mavsdk(config) as mavsdk:
+        await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+        drone = await mavsdk.first_autopilot(timeout_s=60.0)
+        assert drone is not None, "PX4 was not discovered"
+        raw, action, tel = MissionRawAsync(drone), ActionAsync(drone), TelemetryAsync(drone)
+        imported = await raw.import_qgroundcontrol_mission(str(plan))
+        await raw.upload_mission(imported.mission_items)
+
+        async def armable():
+            h = await tel.health()
+            return h.is_global_position_ok and h.is_home_position_ok and h.is_armable
+
+        await _until(armable, 90, "armable")
+        await action.arm()
+        await raw.start_mission()
+        await _until(tel.in_air, 30, "in the air")
+        max_alt = 0.0
+
+        async def landed_and_disarmed():
+            nonlocal max_alt
+            max_alt = max(max_alt, (await tel.position()).relative_altitude_m)
+            return not await tel.in_air() and not await tel.armed()
+
+        await _until(landed_and_disarmed, 180, "landed and disarmed")
+        p = await tel.position()
+        return {"lat": p.latitude_deg, "lon": p.longitude_deg, "max_alt_m": max_alt,
+                "items": [i.command for i in imported.mission_items]}
+
+
+def test_px4_sitl_flies_the_plan_export_in_mission_mode_and_lands_at_the_goal(tmp_path):
+    goal_lat, goal_lon = to_latlon(*GOAL_NE)
+    plan = tmp_path / "mission.plan"
+    subprocess.run([sys.executable, str(ROOT / "motion_planning.py"), "--plan-only", "--goal_lat", f"{goal_lat:.9f}",
+                    "--goal_lon", f"{goal_lon:.9f}", "--alt", "5", "--export", str(plan)],
+                   cwd=tmp_path, check=True, capture_output=True, timeout=120)
+    instance = free_instance()
+    run_dir = tmp_path / "px4"
+    bin_dir = run_dir / "bin"
+    bin_dir.mkdir(parents=True)
+    # PX4's command links (px4-param, ...) are symlinks to px4 in a build; a copy of shared/ may hold them as
+    # small files naming their target: link them again beside the binary, where PX4's startup script runs them.
+    (bin_dir / "px4").symlink_to(PX4 / "bin" / "px4")
+    for entry in (PX4 / "bin").iterdir():
+        if entry.name.startswith("px4-") and entry.name != "px4-alias.sh":
+            (bin_dir / entry.name).symlink_to("px4")
+    (bin_dir / "px4-alias.sh").symlink_to(PX4 / "bin" / "px4-alias.sh")
+    env = dict(os.environ, PX4_SYS_AUTOSTART="10040", PX4_SIM_MODEL="sihsim_quadx", PX4_HOME_LAT=str(LAT0),
+               PX4_HOME_LON=str(LON0), PX4_HOME_ALT="0", PX4_EKF2_FAST_ALIGN="1")
+    env["PATH"] = f"{bin_dir}{os.pathsep}{env.get('PATH', '')}"
+    px4 = subprocess.Popen([str(bin_dir / "px4"), "-d", "-i", str(instance), str(PX4 / "etc")], cwd=run_dir,
+                           env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        flown = asyncio.run(asyncio.wait_for(_fly(plan, 14540 + instance), 360))
+    finally:
+        if px4.poll() is None:
+            os.killpg(px4.pid, signal.SIGTERM)
+            try:
+                px4.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                os.killpg(px4.pid, signal.SIGKILL)
+                px4.wait()
+    assert flown["items"][0] == 22 and flown["items"][-1] == 21  # takeoff ... land, as MAVSDK read them
+    assert distance_m(flown["lat"], flown["lon"], goal_lat, goal_lon) < 3.0
+    assert 4.0 < flown["max_alt_m"] < 6.5  # the planned 5 m above home

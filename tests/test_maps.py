@@ -1,0 +1,158 @@
+"""The map file reader, rule by rule: every malformed file is one MapFormatError naming the file, the line and
+why, never a traceback or a hang; and what the client's grids may be asked to hold is bounded."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skyroute import maps, sfmap
+from skyroute.maps import MapFormatError, parse_colliders, read_colliders, read_home
+
+HOME = "lat0 37.792480, lon0 -122.397450\n"
+HEADER = "posX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+BOX = "1,2,3,4,5,6\n"
+
+
+def write_map(tmp_path: Path, content: str | bytes) -> Path:
+    path = tmp_path / "map.csv"
+    path.write_bytes(content.encode() if isinstance(content, str) else content)
+    return path
+
+
+def test_reads_home_and_rows_skipping_blank_lines(tmp_path):
+    city = read_colliders(write_map(tmp_path, HOME + HEADER + BOX + "\n   \n-1.5,2,3,0.5,0.5,3\n"))
+    assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)
+    assert city.obstacles.tolist() == [[1, 2, 3, 4, 5, 6], [-1.5, 2, 3, 0.5, 0.5, 3]]
+
+
+@pytest.mark.parametrize("content", [
+    "\ufeff" + HOME + HEADER + BOX,                                     # a UTF-8 byte-order mark
+    HOME.replace("\n", "\r\n") + HEADER.replace("\n", "\r\n") + "1,2,3,4,5,6\r\n",   # Windows line ends
+    HOME + " PosX , posy,POSZ,halfsizex , HalfSizeY,halfSizeZ \n" + BOX,  # header case and spaces
+    HOME + HEADER + " +1.5e0 , -2., .5 ,4,5,6E-1 \n",                   # number forms
+    HOME + HEADER + BOX.rstrip("\n"),                                   # no newline at the end
+])
+def test_accepted_variants(tmp_path, content):
+    city = read_colliders(write_map(tmp_path, content))
+    assert city.obstacles.shape == (1, 6) and (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)
+
+
+def test_read_home_returns_lat_then_lon(tmp_path):
+    assert read_home(write_map(tmp_path, HOME + HEADER + BOX)) == (37.79248, -122.39745)
+    assert read_home(write_map(tmp_path, "\ufeff" + HOME + HEADER + BOX)) == (37.79248, -122.39745)
+
+
+BAD_MAPS = [
+    # (content, line, what the message says)
+    ("", 1, "empty file"),
+    (b"\xff\xfe\x00garbage", 1, r"not UTF-8 text \(byte 0xff at column 1\)"),
+    ((HOME + HEADER + BOX).encode() + b"1,2,\xe9,4,5,6\n", 4, r"not UTF-8 text \(byte 0xe9 at column 5\)"),
+    ("37.7, -122.3\n" + HEADER + BOX, 1, "expected 'lat0 <deg>, lon0 <deg>'"),
+    ("lat0 95.0, lon0 1.0\n" + HEADER + BOX, 1, "outside"),
+    ("lat0 37.7, lon0 -180.5\n" + HEADER + BOX, 1, "outside"),
+    ("lat0 nan, lon0 1.0\n" + HEADER + BOX, 1, "expected 'lat0"),
+    ("lat0 1e999, lon0 1.0\n" + HEADER + BOX, 1, "not finite"),
+    ("lat0 37.7, lon0 -122.3\n", 2, "expected header"),
+    ("lat0 37.7, lon0 -122.3", 2, "expected header"),
+    (HOME + BOX + BOX, 2, "expected header"),                            # no header: refused, not a lost box
+    (HOME + "x,y,z\n" + BOX, 2, "expected header"),
+    (HOME + HEADER, 3, "no obstacle rows"),
+    (HOME + HEADER + "\n\n", 3, "no obstacle rows"),
+    (HOME + HEADER + BOX + "1,2,3,4,5\n", 4, "expected 6 comma-separated numbers, got 5 fields"),
+    (HOME + HEADER + BOX + "1,2,3,4,5,6,\n", 4, "got 7 fields"),
+    (HOME + HEADER + BOX + "1,2,x,4,5,6\n", 4, "not a number: 'x'"),
+    (HOME + HEADER + BOX + "\n1,2,nan,4,5,6\n", 5, "not a number: 'nan'"),
+    (HOME + HEADER + "1,2,inf,4,5,6\n", 3, "not a number: 'inf'"),
+    (HOME + HEADER + "1,2,1_000,4,5,6\n", 3, "not a number: '1_000'"),
+    (HOME + HEADER + "0x10,2,3,4,5,6\n", 3, "not a number"),
+    (HOME + HEADER + "1,2,3,4,5,6 # a comment\n", 3, "not a number"),
+    (HOME + HEADER + "1,2,3,4,5,1e400\n", 3, "too large to be a finite number"),
+    (HOME + HEADER + "1e300,2,3,4,5,6\n", 3, "within 25 km of home"),
+    (HOME + HEADER + BOX + "1,2,3,-4,5,6\n", 4, "negative half size"),
+    (HOME + HEADER + "24999,0,3,2,5,6\n", 3, r"reaches 25001 m from home \(north-south\)"),
+    (HOME + HEADER + "0,-1e7,3,4,5,6\n", 3, r"\(east-west\)"),
+    (HOME + HEADER + "0,0,3,4,5,1e9\n", 3, "within 10000 m"),
+    (HOME + HEADER + "1,2,3,4,5,6\r1,2,3,4,5,6\n", 3, "got 11 fields"),              # a lone carriage return
+    (HOME + HEADER + BOX + "-1,2,3,4,5,6\n1,2,3,-4,5,6\n1,2,3,4,5\n", 5, "negative half size"),  # first problem
+]
+
+
+@pytest.mark.parametrize("content, line, message", BAD_MAPS)
+def test_bad_map_files_are_one_line_naming_the_file_and_line(tmp_path, content, line, message):
+    path = write_map(tmp_path, content)
+    with pytest.raises(MapFormatError) as info:
+        read_colliders(path)
+    text = str(info.value)
+    assert re.search(message, text), text
+    assert info.value.line == line
+    assert text.startswith(f"{path}:{line}: ") and "\n" not in text
+
+
+def test_a_problem_in_a_big_file_is_found_at_its_line(tmp_path):
+    rows = [f"{10 * (k % 100)},{10 * (k // 100)},5,5,5,5" for k in range(20_000)]
+    rows[15_000] = "1,2,3,4,-5,6"
+    path = write_map(tmp_path, HOME + HEADER + "\n".join(rows) + "\n")
+    with pytest.raises(MapFormatError, match="negative half size") as info:
+        read_colliders(path)
+    assert info.value.line == 15_003
+
+
+def test_fast_and_line_by_line_readers_agree(tmp_path):
+    # Blank lines of spaces send a file through the line-by-line reader; the same rows must read the same.
+    rows = "1,2,3,4,5,6\n-7.25,8e1,0.5,.5,1.,2\n"
+    fast = parse_colliders((HOME + HEADER + rows).encode()).obstacles
+    slow = parse_colliders((HOME + HEADER + "   \n" + rows).encode()).obstacles
+    np.testing.assert_array_equal(fast, slow)
+
+
+def test_junk_on_line_1_is_quoted_as_a_short_printable_excerpt(tmp_path):
+    junk = "\x00\x1b[31m" + "x" * 4096
+    with pytest.raises(MapFormatError) as info:
+        read_colliders(write_map(tmp_path, junk + "\n" + HEADER + BOX))
+    text = str(info.value)
+    assert len(text) < 250 and "(4102 characters)" in text
+    assert text.isprintable() and "\\x00" in text
+
+
+def test_an_empty_map_is_allowed_only_when_asked(tmp_path):
+    path = write_map(tmp_path, HOME + HEADER)
+    with pytest.raises(MapFormatError, match="no obstacle rows"):
+        read_colliders(path)
+    city = read_colliders(path, allow_empty=True)
+    assert city.obstacles.shape == (0, 6)
+
+
+def test_a_map_bigger_than_the_grids_hold_names_the_row_that_stretches_it(tmp_path):
+    # Two boxes 20 km apart north and east are fine for the format, but 400 M cells at 1 m are too many.
+    content = HOME + HEADER + "0,0,5,5,5,5\n100,100,5,5,5,5\n-10000,0,5,5,5,5\n10000,10000,5,5,5,5\n"
+    with pytest.raises(MapFormatError) as info:
+        read_colliders(write_map(tmp_path, content))
+    assert info.value.line == 6
+    assert "stretches the map to 20010 x 10010 m" in str(info.value) and "200 M cells" in str(info.value)
+    assert read_colliders(write_map(tmp_path, content), max_grid_cells=10**9).obstacles.shape == (4, 6)
+
+
+def test_a_file_that_is_not_a_regular_file_is_refused_without_reading_it(tmp_path):
+    import os
+
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)  # reading it would block forever
+    with pytest.raises(MapFormatError, match="not a regular file"):
+        read_colliders(fifo)
+
+
+def test_an_oversized_file_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    monkeypatch.setattr(maps, "MAX_FILE_BYTES", 100)
+    with pytest.raises(MapFormatError, match="at most 0 MiB"):
+        read_colliders(write_map(tmp_path, HOME + HEADER + BOX * 20))
+
+
+@pytest.mark.skipif(sfmap.local_copy() is None, reason="no local copy of the SF map")
+def test_reads_the_sf_map_unchanged():
+    city = read_colliders(sfmap.local_copy())
+    assert city.obstacles.shape == (3845, 6)
+    assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)

@@ -146,8 +146,10 @@ BAD_MAPS = {
     "blank-rows-only": (GOOD_HEAD.encode() + b"\n  \n", 3, "no obstacle rows"),
     "five-columns": (GOOD_HEAD.encode() + b"1,2,3,4,5\n", 3, "expected 6 comma-separated numbers"),
     "seven-columns": (GOOD_HEAD.encode() + b"1,2,3,4,5,6,7\n", 3, "found 7 fields"),
-    "inf-value": (GOOD_HEAD.encode() + b"1,2,3,4,5,6\n1,2,inf,4,5,6\n", 4, "inf is not a finite number"),
-    "nan-value": (GOOD_HEAD.encode() + b"nan,2,3,4,5,6\n", 3, "nan is not a finite number"),
+    "inf-value": (GOOD_HEAD.encode() + b"1,2,3,4,5,6\n1,2,inf,4,5,6\n", 4, "not a number: 'inf'"),
+    "nan-value": (GOOD_HEAD.encode() + b"nan,2,3,4,5,6\n", 3, "not a number: 'nan'"),
+    "overflowing-value": (GOOD_HEAD.encode() + b"1e999,2,3,4,5,6\n", 3, "1e999 is not a finite number"),
+    "span-too-wide": (GOOD_HEAD.encode() + b"-12000,-12000,5,1,1,5\n12000,12000,5,1,1,5\n", 4, "stretches the map"),
     "huge-value": (GOOD_HEAD.encode() + b"1e300,2,3,4,5,6\n", 3, "more than 25000 m from home"),
     "huge-box": (GOOD_HEAD.encode() + b"0,0,5,1e9,1e9,5\n", 3, "more than 25000 m from home"),
     "far-box": (GOOD_HEAD.encode() + b"1e7,0,5,1,1,5\n", 3, "more than 25000 m from home"),
@@ -183,9 +185,9 @@ def test_bom_case_spaces_and_blank_lines_are_accepted(tmp_path, content):
 
 
 def test_a_huge_box_inside_the_limits_does_not_hang_the_start(tmp_path):
-    """A 50 km box used to fill millions of spatial-index cells: the index is bounded."""
+    """A 14 km box (as big as the map rules allow) would fill 300 000 spatial-index cells: the index is bounded."""
     path = tmp_path / "big.csv"
-    path.write_text(GOOD_HEAD + "0,0,-10,24999,24999,5\n30,0,10,5,5,10\n")
+    path.write_text(GOOD_HEAD + "0,0,-10,7000,7000,5\n30,0,10,5,5,10\n")
     t0 = time.monotonic()
     city = sim.world.CityMap.from_csv(path)
     assert time.monotonic() - t0 < 5.0

@@ -158,6 +158,12 @@ class SimClient:
         self.thread.join(2)
 
 
+def wait_sim(sim, seconds: float, timeout_s: float = 20.0) -> dict:
+    """Wait until ``seconds`` of simulated time have passed (however slow the machine is)."""
+    until = sim.truth()["sim_time_s"] + seconds
+    return sim.wait_until(lambda s: s["sim_time_s"] >= until, timeout_s)
+
+
 def wait_ready(sim, timeout_s: float = 10.0) -> dict:
     """Wait until the simulated vehicle has booted far enough to arm (its pre-arm checks pass)."""
     return sim.wait_until(lambda s: s["ready"], timeout_s)

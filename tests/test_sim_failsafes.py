@@ -13,7 +13,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from tests.conftest import wait_ready
+from tests.conftest import wait_ready, wait_sim
 from tests.test_sim_mavlink import streaming
 
 M = mavlink
@@ -103,7 +103,7 @@ def test_px4_flies_three_offboard_missions_on_one_running_sim(sim_start, sim_con
         texts = [m.text for m in c.of_type("STATUSTEXT", since)]
         assert {"Landing at current position\t", "Landing detected\t", "Disarmed by landing\t"} <= set(texts)
         since = c.mark()
-        time.sleep(0.2)  # 2 s simulated without setpoints
+        wait_sim(sim, 2.0)  # without setpoints
         assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_TEMPORARILY_REJECTED
         target[:] = [0.0, 20.0 * (mission + 1), -5.0]
     assert len(sim.report()["landings"]) == 3 and not sim.report()["collisions"]
@@ -119,7 +119,7 @@ def test_landed_state_sequences(sim_start, sim_connect):
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
     assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, NAN, NAN, NAN).result == 0
     sim.wait_until(lambda s: s["mode"] == "LOITER" and not s["on_ground"], 10)  # takeoff done: Hold
-    time.sleep(0.3)  # 1.5 s simulated in the air
+    wait_sim(sim, 1.5)  # in the air
     assert c.command(M.MAV_CMD_NAV_LAND, 0, 0, 0, NAN, NAN, NAN, NAN).result == 0
     sim.wait_until(lambda s: not s["armed"], 20)
     states = [m.landed_state for m in c.of_type("EXTENDED_SYS_STATE")]
@@ -151,7 +151,7 @@ def test_ardupilot_guided_target_moves_on_for_guid_timeout_then_stops(sim_start,
         x = north0 + 10.0
     c.send(M.MAVLink_set_position_target_local_ned_message(0, 1, 1, M.MAV_FRAME_LOCAL_NED, mask, x, 0.0, -10.0,
                                                            2.0, 0.0, 0.0, 0, 0, 0, 0, 0))
-    time.sleep(2.0)  # 20 s simulated: long after the timeout
+    wait_sim(sim, 20.0)  # long after the timeout
     moved = sim.truth()["position"]["north_m"] - north0
     speed = math.hypot(*sim.truth()["velocity_neu_m_s"][:2])
     assert moved == pytest.approx(6.0 if velocity_only else 16.0, abs=0.6 if velocity_only else 0.3)
@@ -172,7 +172,7 @@ def test_ardupilot_gcs_heartbeat_loss(sim_start, sim_connect, fs_gcs_enable, mod
     sim.wait_until(lambda s: abs(s["position"]["up_m"] - 10) < 0.1, 15)
     since = c.mark()
     c.stop_heartbeats()
-    time.sleep(1.0)  # 10 s simulated
+    wait_sim(sim, 10.0)
     state = sim.truth()
     assert state["mode"] == mode and state["armed"]
     texts = [m.text for m in c.of_type("STATUSTEXT", since)]

@@ -12,7 +12,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from tests.conftest import wait_ready
+from tests.conftest import wait_ready, wait_sim
 
 M = mavlink
 PX4_MAIN_AUTO, PX4_MAIN_OFFBOARD, PX4_SUB_LOITER = 4, 6, 3
@@ -261,11 +261,10 @@ def test_strict_offboard_loss_after_com_of_loss_t_takes_com_obl_rc_act(sim_start
     c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", since=since)
     assert state["armed"] and not state["on_ground"]
     up = state["position"]["up_m"]
-    time.sleep(0.4)  # 2 s simulated
+    wait_sim(sim, 2.0)
     assert (sim.truth()["position"]["up_m"] < up - 1.0) == sinks
     with streaming(c, lambda: (0.0, 0.0, -5.0)):
-        time.sleep(0.4)
-        back = sim.truth()["mode"]
+        back = wait_sim(sim, 2.0)["mode"]
     assert (back == "OFFBOARD") == (mode != "LAND"), back
 
 

@@ -124,7 +124,7 @@ def fly(
                 connection, heartbeat_timeout_s=heartbeat_timeout_s, tlog_path=tlog_path,
                 target_system=target_system, signing_key=key,
             )
-        except vehicle_mod.BadConnection as exc:
+        except (vehicle_mod.BadConnection, vehicle_mod.SigningRequired) as exc:
             raise UserError(str(exc)) from None
         except vehicle_mod.VehicleError as exc:
             raise UserError(f"no autopilot answered on {connection}: {exc}") from None

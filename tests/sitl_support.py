@@ -359,4 +359,10 @@ class Monitor:
         ``ignore`` ones (row numbers, e.g. the roof it took off from)."""
         points = np.array([(s.north_m, s.east_m, s.up_m) for s in self.track(since_s) if s.up_m > above_m])
         boxes = np.delete(self.boxes, list(ignore), axis=0)
-        return float(distance_to_boxes_m(points, boxes).min()) if len(points) else math.inf
+        if not len(points):
+            return math.inf
+        distances = distance_to_boxes_m(points, boxes)
+        k = int(distances.argmin())
+        print(f"closest approach {distances[k]:.2f} m at N {points[k, 0]:.1f} E {points[k, 1]:.1f} "
+              f"up {points[k, 2]:.1f} m (sample {k + 1} of {len(points)})")
+        return float(distances[k])

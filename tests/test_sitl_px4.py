@@ -41,7 +41,8 @@ def assert_landed_safely_at(monitor: Monitor, goal, since_s: float) -> None:
     error_m = math.hypot(north - goal[0], east - goal[1])
     clearance_m = monitor.min_clearance_m(since_s)
     print(f"\nlanded {error_m:.2f} m from the goal, min clearance {clearance_m:.2f} m")
-    assert error_m <= 1.0 and clearance_m >= SAFETY_M - 1.5
+    # PX4's position loop overshoots the stop at the goal by up to 1.6 m (README's margin paragraph)
+    assert error_m <= 1.0 and clearance_m >= SAFETY_M - 2.0
 
 
 @pytest.fixture

@@ -1372,3 +1372,16 @@ def test_a_vehicle_error_after_arming_lands_and_is_a_flight_abort(clock):
         make_mission(v, clock, straight_plan([])).run()
     assert reads[-1] is True and not v.telemetry.armed and v.telemetry.on_ground
     assert err.value.result is not None
+
+
+def test_after_an_outage_the_mode_is_judged_from_a_heartbeat_sent_after_it(clock):
+    # the failsafe's mode change reaches us with the next heartbeat, up to a second after the link is back: a
+    # recovery that judged the stale "offboard" would not take control back and would fly on in HOLD
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.telemetry.last_heartbeat_s = 0.0
+    clock.at(8.0, lambda: setattr(v, "link_ok", False))
+    clock.at(11.0, lambda: setattr(v, "link_ok", True))
+    clock.at(11.8, lambda: (setattr(v, "mode", "hold"), setattr(v.telemetry, "last_heartbeat_s", 11.8)))
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and result.recoveries == 1
+    assert v.calls.count("take_control") == 1

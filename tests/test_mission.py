@@ -1280,8 +1280,9 @@ def test_mission_no_path_never_takes_off_against_sim(sim_start):
 
 @pytest.mark.flight
 def test_mission_link_outage_against_sim(sim_start):
-    # the link drops for 5 s (wall) in flight, then comes back: the mission takes control back and completes
-    sim = sim_start(strict=True, speedup=1.0, faults={"outage_start_s": 8.0, "outage_duration_s": 5.0})
+    # the link drops for 5 s (wall) in flight, then comes back: the mission takes control back and completes (the
+    # sim's faults run on its clock: at speed-up 2 that is 10 s of its time, from 8 s, when it flies)
+    sim = sim_start(strict=True, speedup=2.0, faults={"outage_start_s": 8.0, "outage_duration_s": 10.0})
     result = fly(sim, link_lost_timeout_s=10.0)
     report = sim.stop()
     assert result.completed and result.recoveries >= 1

@@ -138,8 +138,8 @@ touchdown), ``armed_time_s``, ``airborne_time_s``, ``distance_flown_m``, ``max_a
 ``reason``), ``setpoints_received``, ``last_setpoint_sim_time_s``, ``last_gcs_heartbeat_sim_time_s`` (the
 last HEARTBEAT that counts as the ground station's), ``events`` (every status line:
 ``sim_time_s``, ``kind``, ``text``), ``links`` (per TCP client: ``packets_in/out``, ``dropped_in/out``,
-``rejected_signature``, ``junk_bytes``), ``signing`` (``enabled``, ``rejected_frames``), ``sensor`` (its settings, ``scans``, ``min_reading_m``; or
-``{"enabled": false}``).
+``rejected_signature``, ``junk_bytes``), ``signing`` (``enabled``, ``rejected_frames``), ``sensor`` (its
+settings, ``scans``, ``min_reading_m``; or ``{"enabled": false}``).
 """
 
 from .boot import BootTimeline

@@ -13,13 +13,7 @@ from skyroute.planning.cspace import create_grid
 from skyroute.planning.grid import GridMap
 from skyroute.planning.livemap import LiveMap
 from skyroute.planning.pruning import line_of_sight
-from skyroute.planning.replan import (
-    GoalBlocked,
-    GoalUnreachable,
-    Replanner,
-    braking_distance_m,
-    can_turn_in_time,
-)
+from skyroute.planning.replan import GoalBlocked, GoalUnreachable, Replanner
 
 ALT, SAFETY = 5.0, 3.0
 #: Two long blocks with a 24 m north-south street between them (east -12..12), posts fixing a 200 m extent.
@@ -183,13 +177,3 @@ def test_a_start_inside_the_margin_leads_out_first():
     live.add_scan(-40.5, 0.5, bearings, math.radians(2.5), d, 30.0)
     route = Replanner(live, (-70.5, 0.5), ALT).replan((-40.5, 0.5))
     assert route.snapped and not live.grid[live.cell_of(*route.waypoints[1, :2])]
-
-
-def test_braking_decides_whether_to_turn_without_stopping():
-    from skyroute.planning.replan import Blockage
-
-    assert braking_distance_m(10.0, 2.5, reaction_s=0.0) == pytest.approx(20.0)
-    far = Blockage("margin", 25.0, (0.0, 0.0))
-    near = Blockage("margin", 8.0, (0.0, 0.0))
-    assert can_turn_in_time(far, 10.0, 3.0, 5.0) and not can_turn_in_time(near, 10.0, 3.0, 5.0)
-    assert can_turn_in_time(near, 2.0, 3.0, 5.0) and can_turn_in_time(None, 20.0, 1.0, 5.0)

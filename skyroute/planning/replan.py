@@ -14,7 +14,8 @@ obstacles count as reaching above the altitude (their tops were never seen), so 
 When the goal cannot be reached any more, :meth:`Replanner.fallback` finds the nearest safe point that can:
 free on the live grid (and landable, if a landing grid is given), in the vehicle's connected free space.
 
-Frames: map metres ``(north_m, east_m)``; waypoints ``[north_m, east_m, altitude_m, heading_rad]``.
+Frames: map metres ``(north_m, east_m)``; waypoints ``[north_m, east_m, altitude_m, heading_rad]``. Whether the
+vehicle can turn onto a new route without stopping first is the mission's call (``skyroute.flight.replanning``).
 """
 
 from __future__ import annotations
@@ -163,6 +164,22 @@ class Replanner:
                 break
         return first_margin
 
+    # ------------------------------------------------------------------------------------------- sensing
+    def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
+                 max_range_m: float):
+        """Feed one scan to the live layer (:meth:`LiveMap.add_scan`)."""
+        return self.live.add_scan(north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m)
+
+    def discovered_ne(self) -> np.ndarray:
+        """Map ``(north_m, east_m)`` of every observed obstacle cell's centre, ``(K, 2)``."""
+        return self.live.hit_cells_ne()
+
+    def clearance_m(self, north_m: float, east_m: float, direction_north: float, direction_east: float,
+                    max_m: float) -> float:
+        """How far the horizontal ray from the point along the unit direction stays out of every observed
+        obstacle's margin, up to ``max_m`` (m); the map's own buildings are the map's clearance function's."""
+        return self.live.clearance_m(north_m, east_m, direction_north, direction_east, max_m)
+
     # ---------------------------------------------------------------------------------------- replanning
     def _grid_planner(self) -> GridPlanner:
         if self._planner is None or self._planner_version != self.live.version:
@@ -249,26 +266,3 @@ class Replanner:
             return self.replan(position_ne)
         finally:
             self.goal_ne = saved
-
-
-def braking_distance_m(speed_mps: float, decel_mps2: float, reaction_s: float = 0.3) -> float:
-    """Metres to stop from ``speed_mps``: ``v * reaction_s + v^2 / (2 decel)``.
-
-    >>> round(braking_distance_m(10.0, 3.0), 2)
-    19.67
-    """
-    v = max(float(speed_mps), 0.0)
-    return v * reaction_s + v * v / (2.0 * max(float(decel_mps2), 1e-6))
-
-
-def can_turn_in_time(blockage: Blockage | None, speed_mps: float, decel_mps2: float, safety_m: float,
-                     reaction_s: float = 0.3) -> bool:
-    """Whether the vehicle can switch to a new route without braking to a stop first: it could still stop before
-    the obstacle the blockage points at (along the path, the obstacle stands at least the margin beyond a
-    ``"margin"`` blockage's point, and at it for ``"blocked"``)."""
-    if blockage is None:
-        return True
-    room = blockage.along_m + (safety_m if blockage.reason == "margin" else 0.0) - 0.5 * safety_m
-    return braking_distance_m(speed_mps, decel_mps2, reaction_s) <= room
-
-

@@ -11,6 +11,7 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")  # files only; never needs a display
+import matplotlib.patches  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
@@ -87,6 +88,36 @@ def draw_track(ax, track_ne: np.ndarray):
     return ax
 
 
+def draw_discovered(ax, points_ne: np.ndarray, truth: np.ndarray | None = None):
+    """Observed obstacle cells ``(K, 2)`` (map ``north_m, east_m`` of 1 m cells) as red squares; ``truth`` boxes
+    ``(N, 6)`` the map did not have (e.g. the changed city's walls), outlined in red, if given."""
+    pts = np.asarray(points_ne, dtype=float).reshape(-1, 2)
+    if truth is not None and len(truth):
+        t = np.asarray(truth, dtype=float)
+        for n, e, _a, dn, de, _da in t:
+            ax.add_patch(matplotlib.patches.Rectangle((e - de, n - dn), 2 * de, 2 * dn, fill=False,
+                                                      edgecolor="tab:red", linewidth=0.8, linestyle="--", zorder=2))
+        ax.plot([], [], "--", color="tab:red", linewidth=0.8, label="not on the map (truth)")
+    if len(pts):
+        ax.scatter(pts[:, 1], pts[:, 0], s=4, marker="s", color="tab:red", label="discovered obstacles", zorder=3)
+    return ax
+
+
+def draw_replans(ax, replans: list):
+    """Each replan's new route (faded blue, dashed) and where it was made (a red cross, numbered). ``replans``
+    are objects with ``north_m``, ``east_m`` and ``waypoints`` ((K, 4) or None)."""
+    for k, r in enumerate(replans):
+        wp = getattr(r, "waypoints", None)
+        if wp is not None and len(wp):
+            ax.plot(wp[:, 1], wp[:, 0], "--", color="tab:cyan", linewidth=0.9, alpha=0.8, zorder=3,
+                    label="replanned routes" if k == 0 else None)
+        ax.plot(r.east_m, r.north_m, "x", color="tab:red", markersize=7, zorder=6,
+                label="replans" if k == 0 else None)
+        ax.annotate(str(k + 1), (r.east_m, r.north_m), textcoords="offset points", xytext=(4, 4), fontsize=7,
+                    color="tab:red", zorder=6)
+    return ax
+
+
 def draw_height_map(ax, floor: np.ndarray, north_offset: float, east_offset: float):
     """The 2.5D height map: each cell's lowest free altitude (obstacle top plus margin over the rounded grown
     footprint), coloured; cells free at any altitude are left blank. Returns the image (for a colour bar)."""
@@ -156,11 +187,15 @@ def save_plan_figure(
     grid: tuple[np.ndarray, float, float] | None = None,
     floor: tuple[np.ndarray, float, float] | None = None,
     title: str = "",
+    discovered_ne: np.ndarray | None = None,
+    replans: list | None = None,
+    truth_added: np.ndarray | None = None,
 ) -> Path:
     """Write a PNG of the map, the planner's structure, the plan and (optionally) the flown track, over the
     configuration space ``grid = (grid, north_offset, east_offset)`` of a plan at one altitude, or, for a route
     that changes altitude, over the height map ``floor = (floor, north_offset, east_offset)`` with the route's
-    altitude profile below."""
+    altitude profile below. A flight that sensed obstacles adds them (``discovered_ne``, :func:`draw_discovered`),
+    every replan (:func:`draw_replans`) and, for a test city, the boxes the map lacked (``truth_added``)."""
     rows = 2 if floor is not None else 1
     fig, axes = plt.subplots(rows, 1, figsize=(9, 9 + 3 * (rows - 1)), dpi=110, squeeze=False,
                              gridspec_kw={"height_ratios": [3, 1]} if rows == 2 else None)
@@ -175,6 +210,10 @@ def save_plan_figure(
             draw_grid(ax, *grid)
         draw_structure(ax, getattr(plan, "structure", {}) or {})
         draw_plan(ax, plan.raw_path_ne, plan.waypoints)
+        if discovered_ne is not None or truth_added is not None:
+            draw_discovered(ax, np.empty((0, 2)) if discovered_ne is None else discovered_ne, truth_added)
+        if replans:
+            draw_replans(ax, replans)
         if track_ne is not None:
             draw_track(ax, track_ne)
         ax.legend(loc="upper right", fontsize=8)

@@ -11,7 +11,14 @@ and the margin, so walls at the disk's edge are seen. Grids are ``[north_idx, ea
   the vehicle's cell over the planning grid's free cells and takes the cheapest frontier at least ``min_m`` away
   that is not ``abandoned`` (the explorer abandons a frontier it reached without clearing, or could not reach,
   so it never loops on one).
+* **Search cells** (for ground targets): cells free on the planning grid, at least a cell inside the free space,
+  known free and inside the disk, that the downward camera has not looked at yet (:meth:`ExploreArea.view` marks
+  its footprint round the vehicle, radius ``camera_radius_m``). The explorer's goals are the frontiers and the
+  search cells, so it keeps going until it has both seen every wall it can reach and looked at every street.
 * :func:`coverage` is the share of the disk's cells that are known.
+* The saved map is the observed obstacle cells seen free at most once in eight hits (a wedge's reading puts its
+  whole arc on the wall, which grazing sectors smear a cell or two into the street; those cells are seen free by
+  the sectors that look across them).
 * :func:`merged_boxes` turns occupied cells into ``colliders.csv`` boxes: each row's runs of occupied cells, runs
   with the same columns in consecutive rows merged into one rectangle.
 
@@ -55,12 +62,15 @@ class ExploreArea:
     radius_m, altitude_m, safety_m : float
     sensor_range_m : float
         The obstacle sensor's range: the layer reaches that far beyond the disk.
+    camera_radius_m : float or None
+        Radius of the downward camera's footprint on the ground (m); None: no target search (search cells off).
     live_kwargs
         Passed to :class:`~.livemap.LiveMap` (``confirm_hits``, ...).
     """
 
     def __init__(self, obstacles: np.ndarray, start_ne: Sequence[float], radius_m: float, altitude_m: float,
-                 safety_m: float, sensor_range_m: float = 30.0, **live_kwargs) -> None:
+                 safety_m: float, sensor_range_m: float = 30.0, camera_radius_m: float | None = None,
+                 **live_kwargs) -> None:
         if not (math.isfinite(radius_m) and radius_m > 0):
             raise ValueError(f"radius must be finite and > 0 m, got {radius_m}")
         self.start_ne = (float(start_ne[0]), float(start_ne[1]))
@@ -82,6 +92,8 @@ class ExploreArea:
         centre_e = jj + self.east_offset + 0.5 - self.start_ne[1]
         self.disk = np.hypot(centre_n, centre_e) <= radius_m
         self.abandoned = np.zeros(shape, bool)
+        self.viewed = np.zeros(shape, bool)
+        self.camera_radius_m = camera_radius_m
 
     def cell_of(self, north_m: float, east_m: float) -> tuple[int, int]:
         return self.live.cell_of(north_m, east_m)
@@ -102,6 +114,42 @@ class ExploreArea:
         """Share of the disk's cells that are known (0..1)."""
         return coverage(self.known, self.disk)
 
+    def view(self, north_m: float, east_m: float) -> None:
+        """Mark the camera's footprint round the vehicle at map ``(north_m, east_m)`` as looked at."""
+        if self.camera_radius_m is None:
+            return
+        r = self.camera_radius_m
+        i, j = self.cell_of(north_m, east_m)
+        k = int(math.ceil(r)) + 1
+        n, m = self.viewed.shape
+        i0, i1, j0, j1 = max(i - k, 0), min(i + k + 1, n), max(j - k, 0), min(j + k + 1, m)
+        if i0 >= i1 or j0 >= j1:
+            return
+        ii, jj = np.mgrid[i0:i1, j0:j1]
+        near = np.hypot(ii + self.north_offset + 0.5 - north_m, jj + self.east_offset + 0.5 - east_m) <= r
+        self.viewed[i0:i1, j0:j1] |= near
+
+    def search_cells(self) -> np.ndarray:
+        """Cells the camera still has to look at (see the module notes); none without a camera."""
+        if self.camera_radius_m is None:
+            return np.zeros_like(self.viewed)
+        grid = self.live.grid
+        inner = ~grid
+        inner[1:, :] &= ~grid[:-1, :]
+        inner[:-1, :] &= ~grid[1:, :]
+        inner[:, 1:] &= ~grid[:, :-1]
+        inner[:, :-1] &= ~grid[:, 1:]
+        return inner & self.live.known & ~self.live.hits & self.disk & ~self.viewed & ~self.abandoned
+
+    def goals(self) -> np.ndarray:
+        """Where the explorer may go next: the frontiers and the search cells."""
+        return self.frontiers() | self.search_cells()
+
+    def mapped_cells(self) -> np.ndarray:
+        """Observed obstacle cells for the saved map (see the module notes)."""
+        live = self.live
+        return live.hits & (8 * live.free_count.astype(np.int64) <= live.hit_count.astype(np.int64))
+
     def abandon(self, point_ne: Sequence[float], radius_m: float = 4.0) -> int:
         """Abandon the frontier cells within ``radius_m`` of a point; how many cells were marked."""
         i, j = self.cell_of(*point_ne)
@@ -116,7 +164,7 @@ class ExploreArea:
 
     def nearest_frontier(self, position_ne: Sequence[float], min_m: float = 3.0) -> Frontier | None:
         """The cheapest reachable frontier from the vehicle (see :func:`nearest_frontier`)."""
-        mask = self.frontiers()
+        mask = self.goals()
         found = nearest_frontier(self.live.grid, mask, self.cell_of(*position_ne), min_m)
         if found is None:
             return None
@@ -125,7 +173,7 @@ class ExploreArea:
 
     def occupied_boxes(self, height_m: float) -> np.ndarray:
         """Observed obstacle cells as merged ``colliders.csv`` boxes ``(K, 6)`` of ``height_m`` (m)."""
-        return merged_boxes(self.live.hits, self.north_offset, self.east_offset, height_m)
+        return merged_boxes(self.mapped_cells(), self.north_offset, self.east_offset, height_m)
 
 
 def frontier_mask(known: np.ndarray, occupied: np.ndarray, grid: np.ndarray, area: np.ndarray) -> np.ndarray:
@@ -212,3 +260,90 @@ def merged_boxes(occupied: np.ndarray, north_offset: int, east_offset: int, heig
             open_runs.setdefault(run, i)
     boxes.sort(key=lambda b: (b[0] - b[3], b[1] - b[4]))
     return np.array(boxes, float).reshape(-1, 6)
+
+
+class Explorer:
+    """What the exploration mission needs of planning: the area, its live layer, routes on it.
+
+    Parameters
+    ----------
+    area : ExploreArea
+    method : {"grid", "any-angle"}
+        How routes are pruned (:class:`~.replan.Replanner`).
+    look_ahead_m : float
+        How far along the remaining path :meth:`check` looks for observed obstacles.
+    """
+
+    def __init__(self, area: ExploreArea, *, method: str = "grid", look_ahead_m: float = 40.0) -> None:
+        from skyroute.planning.replan import Replanner
+
+        self.area = area
+        self.replanner = Replanner(area.live, area.start_ne, area.altitude_m, look_ahead_m=look_ahead_m,
+                                   method=method)
+
+    # the sensing step's ObstacleMap (skyroute.flight.replanning)
+    def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
+                 max_range_m: float):
+        return self.area.live.add_scan(north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m)
+
+    def check(self, position_ne: Sequence[float], waypoints_ne: np.ndarray):
+        """The first observed obstacle (or its margin) on the remaining path, or None (:meth:`Replanner.check`)."""
+        return self.replanner.check(position_ne, waypoints_ne)
+
+    def discovered_ne(self) -> np.ndarray:
+        return self.area.live.hit_cells_ne()
+
+    def clearance_m(self, north_m: float, east_m: float, direction_north: float, direction_east: float,
+                    max_m: float) -> float:
+        return self.area.live.clearance_m(north_m, east_m, direction_north, direction_east, max_m)
+
+    def free_point(self, point_ne: Sequence[float]) -> tuple[float, float] | None:
+        """The point itself if free on the live grid, else the nearest free cell's centre (None: none)."""
+        from skyroute.planning.cspace import nearest_free_cell
+
+        live = self.area.live
+        cell = live.cell_of(*point_ne)
+        n, m = live.shape
+        if not (0 <= cell[0] < n and 0 <= cell[1] < m):
+            return None
+        if not live.grid[cell]:
+            return float(point_ne[0]), float(point_ne[1])
+        free = nearest_free_cell(live.grid, cell)
+        return None if free is None else self.area.centre_of(free)
+
+    def route_to(self, position_ne: Sequence[float], target_ne: Sequence[float]) -> np.ndarray:
+        """Waypoints ``(K, 4)`` from the position to the target (snapped to the nearest free cell) on the live grid.
+
+        Raises
+        ------
+        PlanningError
+            (``GoalBlocked``, ``GoalUnreachable``, ``NoPathError``) when there is no route.
+        """
+        from skyroute.planning.errors import NoPathError
+
+        goal = self.free_point(target_ne)
+        if goal is None:
+            raise NoPathError(f"no free cell near ({target_ne[0]:.1f} N, {target_ne[1]:.1f} E) on the grid")
+        return self.replanner.route_to(position_ne, goal).waypoints
+
+    # frontiers
+    def next_frontier(self, position_ne: Sequence[float], min_m: float = 3.0) -> Frontier | None:
+        return self.area.nearest_frontier(position_ne, min_m)
+
+    def is_frontier(self, point_ne: Sequence[float], within_cells: int = 1) -> bool:
+        """Whether a frontier cell (not abandoned) lies within ``within_cells`` of the point's cell."""
+        i, j = self.area.cell_of(*point_ne)
+        mask = self.area.goals()
+        n, m = mask.shape
+        r = within_cells
+        return bool(mask[max(i - r, 0):min(i + r + 1, n), max(j - r, 0):min(j + r + 1, m)].any())
+
+    def abandon(self, point_ne: Sequence[float], radius_m: float = 4.0) -> int:
+        return self.area.abandon(point_ne, radius_m)
+
+    def view(self, north_m: float, east_m: float) -> None:
+        """The camera looked down at map ``(north_m, east_m)``."""
+        self.area.view(north_m, east_m)
+
+    def coverage(self) -> float:
+        return self.area.coverage()

@@ -120,3 +120,23 @@ def street_targets(true_boxes: np.ndarray, start_ne, radius_m: float, altitude_m
         if len(out) == count:
             break
     return out
+
+
+def start_near_walls(true_boxes: np.ndarray, altitude_m: float, safety_m: float, wall_within_m: float = 15.0,
+                     search_m: float = 120.0) -> tuple[float, float]:
+    """The street cell nearest the map's home (within ``search_m``) that keeps ``safety_m + 2`` m from every
+    building at any height and has a wall (at the altitude) within ``wall_within_m``: a start with something to map
+    round it."""
+    reach = int(math.ceil(search_m))
+    shape = (2 * reach + 1, 2 * reach + 1)
+    walls = occupancy(true_boxes, altitude_m, -reach, -reach, shape)
+    ground = occupancy(true_boxes, 0.0, -reach, -reach, shape)
+    to_wall = ndimage.distance_transform_edt(~walls)
+    clear = ndimage.distance_transform_edt(~ground) > safety_m + 2.0
+    ok = clear & (to_wall <= wall_within_m)
+    ii, jj = np.mgrid[0:shape[0], 0:shape[1]]
+    r = np.hypot(ii - reach + 0.5, jj - reach + 0.5)
+    if not ok.any():
+        raise ValueError("no street cell near home has a wall within reach")
+    i, j = np.unravel_index(np.argmin(np.where(ok, r, np.inf)), shape)
+    return float(i - reach + 0.5), float(j - reach + 0.5)

@@ -29,7 +29,7 @@ from skyroute.maps import MapFormatError, read_colliders
 log = logging.getLogger("motion_planning")
 
 #: Default time budget of --explore-time (autopilot seconds from takeoff).
-DEFAULT_EXPLORE_TIME_S = 900.0
+DEFAULT_EXPLORE_TIME_S = 3600.0
 
 
 def camera_footprint_m(altitude_m: float) -> float:

@@ -243,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--explore", type=float, metavar="RADIUS_M",
                          help="explore the area within RADIUS_M of the start (frontiers, targets), fly home, land")
     explore.add_argument("--explore-time", dest="explore_time", type=float, metavar="S",
-                         help="exploration time budget in the autopilot's seconds from takeoff (default: 900)")
+                         help="exploration time budget in the autopilot's seconds from takeoff (default: 3600)")
     explore.add_argument("--save-map", dest="save_map", metavar="OUT.csv",
                          help="after exploring, write the known and the discovered obstacles as a colliders.csv")
     output = parser.add_argument_group("output")

@@ -56,7 +56,8 @@ class Explorer(Protocol):
 
     def check(self, position_ne: Sequence[float], waypoints_ne: np.ndarray) -> object | None: ...
 
-    def route_to(self, position_ne: Sequence[float], target_ne: Sequence[float]) -> np.ndarray: ...
+    def route_to(self, position_ne: Sequence[float], target_ne: Sequence[float],
+                 extend_m: float = 0.0) -> np.ndarray: ...
 
     def next_frontier(self, position_ne: Sequence[float]) -> object | None: ...
 
@@ -131,10 +132,11 @@ class ExplorationMission(Mission):
         The time budget (autopilot seconds from takeoff) before the vehicle heads home.
     collect_altitude_m, collect_hold_s : float
         The collect: descend to this height above the target and hold this long (autopilot seconds).
-    decide_every_s, stuck_window_s, stuck_progress_m, back_off_m, arrive_m : float
+    decide_every_s, stuck_window_s, stuck_progress_m, back_off_m, arrive_m, carry_on_m : float
         Re-decide the leg this often (our clock); stuck when the leg's end came no closer than
         ``stuck_progress_m`` over ``stuck_window_s``; how far to back off along the track; an exploring leg ends
-        within ``arrive_m`` of its end (without stopping there).
+        within ``arrive_m`` of its end (without stopping there); and goes on up to ``carry_on_m`` past its
+        frontier where that is free, so the vehicle does not brake for a frontier it will see before reaching.
     kwargs
         The :class:`~.mission.Mission`'s (``altitude_m``, ``map_origin``, ``vehicle_errors``, ...); its
         ``plan_fn`` and ``goal_ne`` are the mission's own (the goal is home: where the vehicle took off).
@@ -143,7 +145,7 @@ class ExplorationMission(Mission):
     def __init__(self, vehicle, make_explorer: Callable[[float, float], Explorer], *, explore_time_s: float = 600.0,
                  collect_altitude_m: float = 2.0, collect_hold_s: float = 2.0, decide_every_s: float = 0.25,
                  stuck_window_s: float = 20.0, stuck_progress_m: float = 1.0, back_off_m: float = 10.0,
-                 arrive_m: float = 1.5, **kwargs) -> None:
+                 arrive_m: float = 1.5, carry_on_m: float = 10.0, **kwargs) -> None:
         super().__init__(vehicle, self._route_from, **kwargs)
         if not explore_time_s > 0:
             raise ValueError(f"explore_time_s must be > 0, got {explore_time_s}")
@@ -153,6 +155,7 @@ class ExplorationMission(Mission):
         self.collect_altitude_m, self.collect_hold_s = float(collect_altitude_m), float(collect_hold_s)
         self.decide_every_s, self.stuck_window_s = float(decide_every_s), float(stuck_window_s)
         self.stuck_progress_m, self.back_off_m, self.arrive_m = float(stuck_progress_m), float(back_off_m), arrive_m
+        self.carry_on_m = float(carry_on_m)
         self.sensing: Sensing | None = None
         self.stats = ExplorationStats()
         self.targets: dict[int, Target] = {}
@@ -339,7 +342,7 @@ class ExplorationMission(Mission):
                 self._give_up(point, "tried twice")
                 continue
             try:
-                route = self.explorer.route_to(here, point)
+                route = self.explorer.route_to(here, point, self.carry_on_m)
             except self.no_path_errors as exc:
                 self._give_up(point, f"no route: {exc}")
                 continue

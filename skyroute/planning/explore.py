@@ -311,8 +311,10 @@ class Explorer:
         free = nearest_free_cell(live.grid, cell)
         return None if free is None else self.area.centre_of(free)
 
-    def route_to(self, position_ne: Sequence[float], target_ne: Sequence[float]) -> np.ndarray:
-        """Waypoints ``(K, 4)`` from the position to the target (snapped to the nearest free cell) on the live grid.
+    def route_to(self, position_ne: Sequence[float], target_ne: Sequence[float], extend_m: float = 0.0) -> np.ndarray:
+        """Waypoints ``(K, 4)`` from the position to the target (snapped to the nearest free cell) on the live grid;
+        ``extend_m`` carries the last leg on past the target, as far as it stays free on the live grid and inside
+        the disk (so a vehicle that will be sent on once the target is seen need not brake for it).
 
         Raises
         ------
@@ -324,7 +326,28 @@ class Explorer:
         goal = self.free_point(target_ne)
         if goal is None:
             raise NoPathError(f"no free cell near ({target_ne[0]:.1f} N, {target_ne[1]:.1f} E) on the grid")
-        return self.replanner.route_to(position_ne, goal).waypoints
+        route = self.replanner.route_to(position_ne, goal).waypoints
+        if extend_m > 0 and len(route) >= 2:
+            route = self._extended(route, extend_m)
+        return route
+
+    def _extended(self, route: np.ndarray, extend_m: float, step_m: float = 0.25) -> np.ndarray:
+        leg = route[-1, :2] - route[-2, :2]
+        length = float(np.hypot(*leg))
+        if length < 1e-6:
+            return route
+        unit = leg / length
+        live, area = self.area.live, self.area
+        n, m = live.shape
+        reach = 0.0
+        for s in np.arange(step_m, extend_m + 1e-9, step_m):
+            i, j = live.cell_of(*(route[-1, :2] + s * unit))
+            if not (0 <= i < n and 0 <= j < m) or live.grid[i, j] or not area.disk[i, j]:
+                break
+            reach = float(s)
+        out = route.copy()
+        out[-1, :2] = route[-1, :2] + reach * unit
+        return out
 
     # frontiers
     def next_frontier(self, position_ne: Sequence[float], min_m: float = 3.0) -> Frontier | None:

@@ -12,8 +12,8 @@ replaces only the flight between takeoff and the landing:
    stop short of it, :func:`~.replanning.can_turn_in_time`), the frontier was seen meanwhile (on to the next one,
    without stopping), a target was sighted, or the time budget ran out.
 2. **Targets.** A LANDING_TARGET sighting (``vehicle.target_sightings()``, local NED, turned into the map frame
-   with the mission's offset) sends the vehicle to the target: route there, descend to ``collect_altitude_m``,
-   hold ``collect_hold_s`` (autopilot time), climb back, carry on.
+   with the mission's offset) sends the vehicle to the target: route there, descend straight down to
+   ``collect_altitude_m``, hold ``collect_hold_s`` (autopilot time), climb straight back, carry on.
 3. **Stuck.** No progress of ``stuck_progress_m`` towards the leg's end within ``stuck_window_s``, a frontier that
    cannot be routed to, or one reached without being cleared: the frontier (and the cells round it) is abandoned,
    and a stuck vehicle first backs off ``back_off_m`` along its flown track. Each frontier is tried at most twice;
@@ -432,8 +432,7 @@ class ExplorationMission(Mission):
         if math.hypot(n - p.north_m, e - p.east_m) > 3.0:  # no free cell near it at the altitude: descend here
             n, e = p.north_m, p.east_m
         self._say(f"target {target.number}: descending to {self.collect_altitude_m:g} m")
-        self._leg_to(np.array([[n, e, self.altitude_m, 0.0], [n, e, self.collect_altitude_m, 0.0]]), "target",
-                     None)
+        self._vertical_to(n, e, self.collect_altitude_m)
         start = self._autopilot_time_s()
         start_ours = self.clock()
         hold = self._to_local(n, e, self.collect_altitude_m)
@@ -446,8 +445,20 @@ class ExplorationMission(Mission):
             self._tick()
         target.collected_s = self.clock()
         self._say(f"target {target.number} collected at ({n:.1f} N, {e:.1f} E); climbing back")
-        self._leg_to(np.array([[n, e, self.collect_altitude_m, 0.0], [n, e, self.altitude_m, 0.0]]), "target",
-                     None)
+        self._vertical_to(n, e, self.altitude_m)
+
+    def _vertical_to(self, north_m: float, east_m: float, altitude_m: float, tolerance_m: float = 0.2) -> None:
+        """Climb or descend straight to ``altitude_m`` over the map point (a position setpoint; the autopilot's
+        own vertical speed limit applies), within ``tolerance_m``."""
+        target = self._to_local(north_m, east_m, altitude_m)
+        heading = float(self._leg[-1, 3]) if len(self._leg) else 0.0
+        deadline = self.clock() + self.takeoff_timeout_s
+        while abs(self._map_position().altitude_m - altitude_m) > tolerance_m:
+            if self.clock() > deadline:
+                raise _Abort(f"did not reach {altitude_m:g} m over ({north_m:.1f} N, {east_m:.1f} E) within "
+                             f"{self.takeoff_timeout_s:g} s")
+            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading)
+            self._tick()
 
     def _go_home(self, home: tuple[float, float]) -> None:
         for _ in range(10):

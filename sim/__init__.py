@@ -47,6 +47,13 @@ same requests to both and compares. Where each rule lives, with its measurements
   ``origin="boot"`` gives LOCAL_POSITION_NED relative to it, as the real ones do; the default ``origin="home"``
   makes the local frame follow home (it moves at DO_SET_HOME and at every arming away from the boot point).
 
+* :mod:`sim.sensors` -- the obstacle sensors, on by default, cast against the TRUE boxes: a 360 degree horizontal
+  range sensor in the vehicle's plane (PX4: OBSTACLE_DISTANCE, 72 north-aligned 5 degree sectors on the onboard
+  link; ArduPilot: DISTANCE_SENSOR per 45 degree proximity sector relative to the heading, as
+  ``GCS_MAVLINK::send_proximity`` sends them, when asked) and a downward rangefinder (DISTANCE_SENSOR,
+  PITCH_270). ``--sensor-range`` (30 m), ``--sensor-rate`` (10 Hz simulated), ``--sensor-noise``,
+  ``--sensor-dropout``, ``--no-sensor``. A client given a stale map sees the city as it is.
+
 Time
 ----
 Everything the autopilot times runs in simulated time, as on SITL with a speed-up: the boot, stream rates and
@@ -131,7 +138,9 @@ touchdown), ``armed_time_s``, ``airborne_time_s``, ``distance_flown_m``, ``max_a
 ``reason``), ``setpoints_received``, ``last_setpoint_sim_time_s``, ``last_gcs_heartbeat_sim_time_s`` (the
 last HEARTBEAT that counts as the ground station's), ``events`` (every status line:
 ``sim_time_s``, ``kind``, ``text``), ``links`` (per TCP client: ``packets_in/out``, ``dropped_in/out``,
-``rejected_signature``, ``junk_bytes``), ``signing`` (``enabled``, ``rejected_frames``).
+``rejected_signature``, ``junk_bytes``), ``signing`` (``enabled``, ``rejected_frames``), ``sensor`` (its
+settings, ``scans``, ``min_reading_m``; or ``{"enabled": false}``), ``targets`` (``--targets``, :mod:`sim.targets`:
+per target ``index``, ``north_m``, ``east_m``, ``first_seen_s``, ``visited_s``, ``closest_low_m``; ``[]`` without).
 """
 
 from .boot import BootTimeline

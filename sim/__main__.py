@@ -17,6 +17,8 @@ from .boot import PRESETS, parse_boot
 from .config import SimConfig, default_map_path
 from .faults import FaultConfig, command_id
 from .params import ARDUPILOT_PARAMS, PX4_PARAMS
+from .sensors import SensorConfig
+from .targets import read_targets
 from .world import CityMap
 
 
@@ -153,6 +155,22 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, default=0, help="seed for wind, GPS noise and packet loss")
     g.add_argument("--physics-dt", type=_ranged(0, 0.1, low_open=True), default=0.02,
                    help="fixed physics step (simulated s)")
+    g = p.add_argument_group("obstacle sensors (sim/sensors.py; cast against the true boxes of --map)")
+    g.add_argument("--targets", type=Path, default=None, metavar="FILE",
+                   help="ground targets, CSV rows north_m,east_m (map frame): the downward camera reports each "
+                        "in view as LANDING_TARGET; the report says when each was first seen and visited")
+    g.add_argument("--no-sensor", action="store_true",
+                   help="no obstacle sensors (default: px4 streams OBSTACLE_DISTANCE, 72 x 5 deg north-aligned "
+                   "sectors, and a downward DISTANCE_SENSOR; ardupilot sends DISTANCE_SENSOR per 45 deg proximity "
+                   "sector and the downward one when asked, e.g. in the EXTRA3 group)")
+    g.add_argument("--sensor-range", type=_ranged(0.5, 600), default=30.0, metavar="M",
+                   help="horizontal sensor's maximum range (m)")
+    g.add_argument("--sensor-rate", type=_ranged(0, 50, low_open=True), default=10.0, metavar="HZ",
+                   help="samples per simulated second (and PX4's stream rate)")
+    g.add_argument("--sensor-noise", type=_ranged(0, 10), default=0.0, metavar="M",
+                   help="range noise standard deviation (m)")
+    g.add_argument("--sensor-dropout", type=_ranged(0, 100), default=0.0, metavar="PCT",
+                   help="percentage of sectors lost in each scan (PX4: UINT16_MAX; ArduPilot: not sent)")
     g = p.add_argument_group("faults (all off by default; link faults are per client and in simulated time)")
     g.add_argument("--packet-loss", type=_ranged(0, 100), default=0.0, metavar="PCT",
                    help="drop this percentage of packets in each direction")
@@ -189,6 +207,9 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         origin=args.origin, radius_m=args.radius, wind_m_s=args.wind, gust_m_s=args.gust,
         gps_noise_m=args.gps_noise, seed=args.seed, physics_dt_s=args.physics_dt, faults=faults,
         boot=args.boot, params=dict(args.param), signing_key=args.signing_key, scale_timeouts=args.scale_timeouts,
+        sensor=SensorConfig(enabled=not args.no_sensor, range_m=args.sensor_range, rate_hz=args.sensor_rate,
+                            noise_m=args.sensor_noise, dropout_pct=args.sensor_dropout),
+        targets=() if args.targets is None else read_targets(args.targets),
     )
 
 
@@ -200,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         config = config_from_args(args)
-    except ValueError as exc:
+    except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     map_path = config.resolved_map_path()

@@ -32,8 +32,10 @@ from .faults import CommandFaults
 from .modes import ArduCopter, Behaviour, Mode, Task, make_personality
 from .params import ParamTable
 from .report import Collision, FlightRecorder
+from .sensors import SENSOR_MESSAGE_IDS, ObstacleSensor
 from .setpoints import global_int_target, local_ned_target
 from .streams import StreamScheduler
+from .targets import GroundTargets
 from .tasks import TaskControl
 from .world import CityMap
 
@@ -75,7 +77,11 @@ class Autopilot(CommandHandlers, TaskControl):
         self.params = ParamTable(config.autopilot, config.params, config.speedup, config.scale_timeouts)
         self.boot = resolve_boot(config.boot)
         self.command_faults = CommandFaults(config.faults)
-        self.scheduler = StreamScheduler(config.autopilot, config.speedup, config.physics_dt_s)
+        sensing = config.sensor.enabled
+        self.sensor = ObstacleSensor(config.sensor, city, config.autopilot, config.seed) if sensing else None
+        self.targets = GroundTargets(config.targets) if config.targets else None
+        self.scheduler = StreamScheduler(config.autopilot, config.speedup, config.physics_dt_s,
+                                         config.sensor.rate_hz if sensing else None)
         self.rng = random.Random(config.seed)
         self.sim_time_s = 0.0
         self.boot_neu = city.boot_point(config.start, config.radius_m, START_MARGIN_M)
@@ -157,6 +163,17 @@ class Autopilot(CommandHandlers, TaskControl):
     def statustext(self, severity: int, text: str, link=None) -> None:
         for msg in tm.statustext(severity, text):
             self.send(link, msg)
+
+    def streamable(self, msg_id: int) -> bool:
+        """Whether the sim can send ``msg_id`` (a telemetry builder, or a sensor message with the sensors on)."""
+        return msg_id in tm.BUILDERS or (self.sensor is not None and msg_id in SENSOR_MESSAGE_IDS)
+
+    def build_messages(self, msg_id: int, link, snapshot_fn) -> list:
+        """The message(s) ``msg_id`` stands for now on ``link`` (ArduPilot's DISTANCE_SENSOR is one per sector)."""
+        if msg_id in SENSOR_MESSAGE_IDS:
+            return [] if self.sensor is None else self.sensor.messages(msg_id, link)
+        builder = tm.BUILDERS.get(msg_id)
+        return [] if builder is None else [builder(snapshot_fn())]
 
     def delivers(self, link, msg) -> bool:
         """Whether ``msg`` goes out on ``link``: PX4 sends STATUSTEXT only to a link it has had a ground station's
@@ -356,6 +373,13 @@ class Autopilot(CommandHandlers, TaskControl):
         self._advance_task()
         self.ground.step()
         self.failsafes.step()
+        if self.sensor is not None:
+            centre = s.position_neu + np.array([0.0, 0.0, self.cfg.radius_m])
+            self.sensor.sample(self.sim_time_s, centre, s.yaw_rad, s.position_neu)
+        if self.targets is not None:
+            self.targets.step(self.sim_time_s, s.position_neu)
+            for msg in self.targets.messages(self.sim_time_s, s.position_neu, self.origin_neu):
+                self.send(None, msg)
         home_up = self.home_neu[2] if self.home_neu is not None else self.boot_neu[2]
         self.recorder.update(dt_s, s.position_neu, self.armed, self.airborne, home_up)
 

@@ -330,7 +330,7 @@ class CommandHandlers:
     # ------------------------------------------------------------------ messages
     def _cmd_message_interval(self, cmd: CommandIn, link):
         msg_id, interval_us = int(cmd.p(1)), cmd.p(2)
-        if msg_id not in tm.BUILDERS:
+        if not self.streamable(msg_id):
             return (M.MAV_RESULT_FAILED if self.is_px4 else M.MAV_RESULT_DENIED), f"message {msg_id} not streamed"
         if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
             return ACCEPTED, ""  # heartbeat stays at 1 Hz
@@ -351,11 +351,11 @@ class CommandHandlers:
 
     def _cmd_request_message(self, cmd: CommandIn, link):
         msg_id = int(cmd.p(1))
-        if msg_id not in tm.BUILDERS:
+        if not self.streamable(msg_id):
             return (M.MAV_RESULT_DENIED if self.is_px4 else M.MAV_RESULT_FAILED), f"message {msg_id} not available"
         if streams.available(self, msg_id):
             queue = self._before_ack if self.is_px4 else self._after_ack
-            queue.append((link, tm.BUILDERS[msg_id](self.snapshot())))
+            queue.extend((link, msg) for msg in self.build_messages(msg_id, link, self.snapshot))
         return ACCEPTED, ""
 
     def _cmd_capabilities(self, cmd: CommandIn, link):

@@ -9,6 +9,7 @@ from pathlib import Path
 from .boot import BootTimeline, resolve_boot
 from .faults import FaultConfig
 from .params import ParamTable
+from .sensors import SensorConfig
 from .signing import secret_key
 
 #: A ``start`` may lie this far (m) outside the map's extent (its boxes' footprints and home).
@@ -75,6 +76,10 @@ class SimConfig:
     scale_timeouts : bool
         Multiply the link-loss timeouts (COM_OF_LOSS_T, COM_DL_LOSS_T, FS_GCS_TIMEOUT) by the speedup, as PX4's
         SITL startup does with PX4_SIM_SPEED_FACTOR, for clients that pace their streams in wall-clock time.
+    sensor : SensorConfig
+        The obstacle sensors (:mod:`sim.sensors`; on by default).
+    targets : tuple of (north_m, east_m)
+        Ground targets the downward camera reports (:mod:`sim.targets`); none by default.
     """
 
     map_path: Path | None = None
@@ -98,6 +103,8 @@ class SimConfig:
     params: dict = field(default_factory=dict)
     signing_key: str | None = None
     scale_timeouts: bool = False
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    targets: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.autopilot not in ("px4", "ardupilot"):

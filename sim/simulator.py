@@ -21,6 +21,7 @@ from . import streams
 from .autopilot import Autopilot
 from .config import SimConfig
 from .report import FlightRecorder, write_report
+from .sensors import SENSOR_MESSAGE_IDS
 from .server import TcpLink, TcpServer, TlogLink
 from .signing import secret_key
 from .world import CityMap
@@ -156,6 +157,8 @@ class Simulator:
                                            time.monotonic() - self._t0)
             links = [] if self._server is None else self._server.stats()
             report["links"] = links
+            report["sensor"] = ap.sensor.report() if ap.sensor is not None else {"enabled": False}
+            report["targets"] = ap.targets.report() if ap.targets is not None else []
             report["signing"] = {"enabled": self._signing_key is not None,
                                  "rejected_frames": sum(link["rejected_signature"] for link in links)}
             return report
@@ -216,6 +219,10 @@ class Simulator:
 
         for link in links:
             for msg_id in ap.scheduler.due(link, now, ready):
+                if msg_id in SENSOR_MESSAGE_IDS:  # per link (ArduPilot's ever-valid sectors), not cached
+                    for msg in ap.build_messages(msg_id, link, ap.snapshot):
+                        link.queue(msg, now)
+                    continue
                 if msg_id not in cache:
                     snap = snap or ap.snapshot()
                     cache[msg_id] = streams.build(ap, msg_id, snap)

@@ -22,6 +22,7 @@ import math
 from pymavlink.dialects.v20 import common as mavlink
 
 from . import telemetry as tm
+from .sensors import SENSOR_MESSAGE_IDS
 
 M = mavlink
 #: At most this many messages of one kind per wall-clock second per link.
@@ -54,13 +55,19 @@ ARDUPILOT_STREAM_GROUPS: dict[int, tuple[int, ...]] = {
     M.MAV_DATA_STREAM_POSITION: (M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
     M.MAV_DATA_STREAM_EXTRA1: (M.MAVLINK_MSG_ID_ATTITUDE,),
     M.MAV_DATA_STREAM_EXTRA2: (M.MAVLINK_MSG_ID_VFR_HUD,),
-    M.MAV_DATA_STREAM_EXTRA3: (M.MAVLINK_MSG_ID_SYSTEM_TIME, M.MAVLINK_MSG_ID_BATTERY_STATUS),
+    M.MAV_DATA_STREAM_EXTRA3: (M.MAVLINK_MSG_ID_SYSTEM_TIME, M.MAVLINK_MSG_ID_BATTERY_STATUS,
+                               M.MAVLINK_MSG_ID_DISTANCE_SENSOR),
 }
 
 
-def default_rates_hz(autopilot: str) -> dict[int, float]:
-    """What a fresh link gets without asking (Hz, simulated time)."""
-    return dict(PX4_ONBOARD_RATES_HZ if autopilot == "px4" else ARDUPILOT_DEFAULT_RATES_HZ)
+def default_rates_hz(autopilot: str, sensor_hz: float | None = None) -> dict[int, float]:
+    """What a fresh link gets without asking (Hz, simulated time). ``sensor_hz``: the obstacle sensors' rate when
+    they are on (PX4 streams OBSTACLE_DISTANCE and the downward DISTANCE_SENSOR at it; ArduPilot only when asked)."""
+    rates = dict(PX4_ONBOARD_RATES_HZ if autopilot == "px4" else ARDUPILOT_DEFAULT_RATES_HZ)
+    if autopilot == "px4" and sensor_hz is not None:
+        rates[M.MAVLINK_MSG_ID_OBSTACLE_DISTANCE] = sensor_hz
+        rates[M.MAVLINK_MSG_ID_DISTANCE_SENSOR] = sensor_hz
+    return rates
 
 
 def available(ap, msg_id: int) -> bool:
@@ -74,6 +81,8 @@ def available(ap, msg_id: int) -> bool:
         return ap.home_neu is not None
     if msg_id == M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
         return ap.origin_set
+    if msg_id in SENSOR_MESSAGE_IDS:
+        return ap.sensor is not None and t >= boot.heartbeat_s
     return t >= boot.heartbeat_s
 
 
@@ -86,17 +95,20 @@ class StreamScheduler:
     speedup : float
     physics_dt_s : float
         No message is due more often than once per physics step.
+    sensor_hz : float or None
+        The obstacle sensors' rate, None when they are off (see :func:`default_rates_hz`).
     """
 
-    def __init__(self, autopilot: str, speedup: float, physics_dt_s: float) -> None:
+    def __init__(self, autopilot: str, speedup: float, physics_dt_s: float, sensor_hz: float | None = None) -> None:
         self.autopilot = autopilot
+        self.sensor_hz = sensor_hz
         self.min_interval_s = max(physics_dt_s, speedup / MAX_WALL_RATE_HZ)
 
     def attach(self, link, now_s: float) -> None:
         """Give a new link the default streams, first due now."""
         link.intervals = {}
         link.next_due = {}
-        for msg_id, hz in default_rates_hz(self.autopilot).items():
+        for msg_id, hz in default_rates_hz(self.autopilot, self.sensor_hz).items():
             self.set_rate(link, msg_id, hz, now_s)
 
     def set_rate(self, link, msg_id: int, hz: float | None, now_s: float) -> None:
@@ -109,7 +121,7 @@ class StreamScheduler:
         link.next_due[msg_id] = now_s
 
     def default_hz(self, msg_id: int) -> float | None:
-        return default_rates_hz(self.autopilot).get(msg_id)
+        return default_rates_hz(self.autopilot, self.sensor_hz).get(msg_id)
 
     def due(self, link, now_s: float, ready=None) -> list[int]:
         """Message ids due on ``link`` now (and ``ready(msg_id)``, if given); advances their due times.

@@ -11,6 +11,7 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")  # files only; never needs a display
+import matplotlib.patches  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
@@ -87,6 +88,36 @@ def draw_track(ax, track_ne: np.ndarray):
     return ax
 
 
+def draw_discovered(ax, points_ne: np.ndarray, truth: np.ndarray | None = None):
+    """Observed obstacle cells ``(K, 2)`` (map ``north_m, east_m`` of 1 m cells) as red squares; ``truth`` boxes
+    ``(N, 6)`` the map did not have (e.g. the changed city's walls), outlined in red, if given."""
+    pts = np.asarray(points_ne, dtype=float).reshape(-1, 2)
+    if truth is not None and len(truth):
+        t = np.asarray(truth, dtype=float)
+        for n, e, _a, dn, de, _da in t:
+            ax.add_patch(matplotlib.patches.Rectangle((e - de, n - dn), 2 * de, 2 * dn, fill=False,
+                                                      edgecolor="tab:red", linewidth=0.8, linestyle="--", zorder=2))
+        ax.plot([], [], "--", color="tab:red", linewidth=0.8, label="not on the map (truth)")
+    if len(pts):
+        ax.scatter(pts[:, 1], pts[:, 0], s=4, marker="s", color="tab:red", label="discovered obstacles", zorder=3)
+    return ax
+
+
+def draw_replans(ax, replans: list):
+    """Each replan's new route (faded blue, dashed) and where it was made (a red cross, numbered). ``replans``
+    are objects with ``north_m``, ``east_m`` and ``waypoints`` ((K, 4) or None)."""
+    for k, r in enumerate(replans):
+        wp = getattr(r, "waypoints", None)
+        if wp is not None and len(wp):
+            ax.plot(wp[:, 1], wp[:, 0], "--", color="tab:cyan", linewidth=0.9, alpha=0.8, zorder=3,
+                    label="replanned routes" if k == 0 else None)
+        ax.plot(r.east_m, r.north_m, "x", color="tab:red", markersize=7, zorder=6,
+                label="replans" if k == 0 else None)
+        ax.annotate(str(k + 1), (r.east_m, r.north_m), textcoords="offset points", xytext=(4, 4), fontsize=7,
+                    color="tab:red", zorder=6)
+    return ax
+
+
 def draw_height_map(ax, floor: np.ndarray, north_offset: float, east_offset: float):
     """The 2.5D height map: each cell's lowest free altitude (obstacle top plus margin over the rounded grown
     footprint), coloured; cells free at any altitude are left blank. Returns the image (for a colour bar)."""
@@ -156,11 +187,15 @@ def save_plan_figure(
     grid: tuple[np.ndarray, float, float] | None = None,
     floor: tuple[np.ndarray, float, float] | None = None,
     title: str = "",
+    discovered_ne: np.ndarray | None = None,
+    replans: list | None = None,
+    truth_added: np.ndarray | None = None,
 ) -> Path:
     """Write a PNG of the map, the planner's structure, the plan and (optionally) the flown track, over the
     configuration space ``grid = (grid, north_offset, east_offset)`` of a plan at one altitude, or, for a route
     that changes altitude, over the height map ``floor = (floor, north_offset, east_offset)`` with the route's
-    altitude profile below."""
+    altitude profile below. A flight that sensed obstacles adds them (``discovered_ne``, :func:`draw_discovered`),
+    every replan (:func:`draw_replans`) and, for a test city, the boxes the map lacked (``truth_added``)."""
     rows = 2 if floor is not None else 1
     fig, axes = plt.subplots(rows, 1, figsize=(9, 9 + 3 * (rows - 1)), dpi=110, squeeze=False,
                              gridspec_kw={"height_ratios": [3, 1]} if rows == 2 else None)
@@ -175,6 +210,10 @@ def save_plan_figure(
             draw_grid(ax, *grid)
         draw_structure(ax, getattr(plan, "structure", {}) or {})
         draw_plan(ax, plan.raw_path_ne, plan.waypoints)
+        if discovered_ne is not None or truth_added is not None:
+            draw_discovered(ax, np.empty((0, 2)) if discovered_ne is None else discovered_ne, truth_added)
+        if replans:
+            draw_replans(ax, replans)
         if track_ne is not None:
             draw_track(ax, track_ne)
         ax.legend(loc="upper right", fontsize=8)
@@ -215,6 +254,59 @@ def save_planner_gallery(
         for ax in axes.ravel()[count:]:
             ax.set_visible(False)
         fig.suptitle(f"The same query with every planner, from {altitude_m:g} m, safety {safety_m:g} m")
+        fig.tight_layout()
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
+    return Path(path)
+
+
+def save_exploration_figure(path, *, known: np.ndarray, hits: np.ndarray, frontiers: np.ndarray, disk: np.ndarray,
+                            north_offset: float, east_offset: float, targets: np.ndarray | None = None,
+                            track_ne: np.ndarray | None = None, start_ne=(0.0, 0.0), radius_m: float = 0.0,
+                            truth: np.ndarray | None = None, title: str | None = None) -> Path:
+    """An exploration: the known area (pale green, seen free), observed obstacle cells (dark red), the frontiers
+    left (orange), the explored disk's edge, the targets ``(K, 3)`` ``[north_m, east_m, collected]`` (stars: green
+    collected, red not), the flown track and, for a test city, the true boxes ``truth`` (grey outlines).
+    Grids ``[north_idx, east_idx]`` with cell ``(0, 0)``'s south-west corner at ``(north_offset, east_offset)``."""
+    n, m = known.shape
+    extent = (east_offset, east_offset + m, north_offset, north_offset + n)
+    image = np.ones((n, m, 4))
+    image[..., 3] = 0.0
+    image[known & ~hits] = (0.55, 0.85, 0.55, 0.6)
+    image[~known & disk] = (0.85, 0.85, 0.85, 0.5)
+    image[hits] = (0.55, 0.05, 0.05, 1.0)
+    image[frontiers] = (1.0, 0.55, 0.0, 1.0)
+    fig, ax = plt.subplots(figsize=(9, 9), dpi=110)
+    try:
+        if truth is not None and len(truth):
+            boxes = np.asarray(truth, float)
+            polys = [[(e - de, nn - dn), (e + de, nn - dn), (e + de, nn + dn), (e - de, nn + dn)]
+                     for nn, e, _, dn, de, _ in boxes]
+            ax.add_collection(PolyCollection(polys, facecolors="none", edgecolors="0.4", linewidths=0.6,
+                                             label="true buildings", zorder=1))
+        ax.imshow(image, origin="lower", extent=extent, interpolation="nearest", zorder=2)
+        ax.add_patch(matplotlib.patches.Circle((start_ne[1], start_ne[0]), radius_m, fill=False, color="tab:blue",
+                                               linestyle="--", linewidth=1.0, label="explored area", zorder=3))
+        if track_ne is not None and len(track_ne):
+            draw_track(ax, track_ne)
+        if targets is not None and len(targets):
+            t = np.asarray(targets, float)
+            done = t[:, 2] > 0
+            ax.plot(t[done, 1], t[done, 0], "*", color="tab:green", markersize=14, label="target collected", zorder=5)
+            ax.plot(t[~done, 1], t[~done, 0], "*", color="tab:red", markersize=14, label="target not collected",
+                    zorder=5)
+        ax.plot([start_ne[1]], [start_ne[0]], "o", color="tab:blue", label="home", zorder=5)
+        ax.plot([], [], "s", color=(0.55, 0.85, 0.55), label="seen free")
+        ax.plot([], [], "s", color=(0.55, 0.05, 0.05), label="observed obstacle")
+        ax.plot([], [], "s", color=(1.0, 0.55, 0.0), label="frontier left")
+        ax.set_xlim(start_ne[1] - radius_m - 35, start_ne[1] + radius_m + 35)
+        ax.set_ylim(start_ne[0] - radius_m - 35, start_ne[0] + radius_m + 35)
+        ax.set_aspect("equal")
+        ax.set_xlabel("east (m)")
+        ax.set_ylabel("north (m)")
+        ax.legend(loc="upper right", fontsize=8)
+        ax.set_title(title or f"exploration: {100 * (known & disk).sum() / max(disk.sum(), 1):.1f} % of the area known")
         fig.tight_layout()
         fig.savefig(path)
     finally:

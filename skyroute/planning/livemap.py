@@ -1,0 +1,294 @@
+"""The live occupancy layer: what the obstacle sensor sees, over the planning grid of one altitude and margin.
+
+Arrays in, arrays out (planning never imports the vehicle): a scan is the sensor's position (map north, east m),
+its sectors' centre bearings (rad clockwise from north), their half width and the distance to the nearest
+obstacle in each (``inf`` nothing within range, ``NaN`` unknown). Grids are indexed ``[north_idx, east_idx]`` like
+every planning grid (:mod:`.cspace`).
+
+What a sector reading means, and what :meth:`LiveMap.add_scan` does with it
+-----------------------------------------------------------------------------
+A reading ``d`` in a wedge says: nothing in the wedge is closer than ``d`` (those cells are *seen free*), and some
+obstacle point lies on the arc at ``d``. PX4's 5 degree sectors make that arc short (2.6 m at 30 m); ArduPilot's
+45 degree ones make it long (24 m at 30 m), so the arc alone would smear street walls into the street. The map
+explains most readings: the layer keeps the map's footprint grid (the obstacles at this altitude without margin)
+and computes, per sector, the distance the map predicts; a reading within ``explain_tolerance_m`` of that (or
+farther) is the map's own building and adds nothing. Only a reading clearly *shorter* than the map predicts is a
+new obstacle: its arc's cells (not already the map's footprint) get a hit. A cell hit in ``confirm_hits`` scans
+is an observed obstacle; one later seen free ``free_to_clear`` times more often than hit is dropped again (noise).
+
+Observed obstacle cells are inflated by the safety margin with the map's own Euclidean rule
+(:func:`.kernels.rasterise`, each hit cell a 1 m box: a cell is blocked when its square comes closer than the
+margin to the hit cell's square), and the planning grid is the map's C-space OR that layer. Map buildings are
+never removed, however often their cells are seen free (counted in ``map_cells_seen_free``): a building missing
+from the truth only costs a detour, and removing one on a few noisy readings could cost a collision.
+
+The layer also keeps what exploration needs (issue 12): ``known`` (cells seen free or hit) and the counts.
+
+>>> base = np.zeros((40, 40), bool); footprint = np.zeros_like(base)
+>>> live = LiveMap(base, footprint, 0, 0, safety_m=2.0, confirm_hits=1)
+>>> update = live.add_scan(5.5, 20.5, np.radians(np.arange(0, 360, 5.0)), np.radians(2.5),
+...                        np.where(np.arange(72) == 0, 10.0, np.inf), 30.0)
+>>> update.new_hits > 0, bool(live.hits[15, 20]), bool(live.grid[13, 20]), bool(live.grid[12, 20])
+(True, True, True, False)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from skyroute.planning import kernels
+
+_TWO_PI = 2.0 * math.pi
+#: Offsets of the five points of a cell sampled for the map's predicted range: centre and corners.
+_SAMPLES = np.array([[0.5, 0.5], [0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class ScanUpdate:
+    """What one scan changed: ``new_hits`` cells newly confirmed as obstacles, ``cleared`` hits dropped,
+    ``explained`` sectors the map accounts for, ``unexplained`` sectors that showed a new obstacle, ``changed``
+    whether the planning grid changed."""
+
+    new_hits: int
+    cleared: int
+    explained: int
+    unexplained: int
+    changed: bool
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + math.pi) % _TWO_PI - math.pi
+
+
+class LiveMap:
+    """Observed obstacles and free space over one planning grid (see the module notes).
+
+    Parameters
+    ----------
+    base_grid : (n, m) bool array
+        The map's configuration space at this altitude and margin (True = blocked); never changed.
+    footprint : (n, m) bool array or None
+        The map's obstacles at this altitude without margin (``create_grid(data, altitude, 0)``), for the
+        predicted ranges; None: no prediction, every finite reading is a hit.
+    north_offset, east_offset : int
+        Map metres of cell ``(0, 0)``'s south-west corner.
+    safety_m : float
+        Margin round observed obstacles (m), as the map's.
+    confirm_hits, free_to_clear : int
+        Scans that must hit a cell before it counts; how many more times a hit cell must be seen free than hit
+        before it is dropped.
+    explain_tolerance_m : float
+        A reading no shorter than the map's prediction minus this is the map's building.
+    """
+
+    def __init__(self, base_grid: np.ndarray, footprint: np.ndarray | None, north_offset: int, east_offset: int,
+                 safety_m: float, *, confirm_hits: int = 2, free_to_clear: int = 3,
+                 explain_tolerance_m: float = 1.5, arc_step_m: float = 0.5) -> None:
+        self.base = np.asarray(base_grid, dtype=bool)
+        self.footprint = None if footprint is None else np.asarray(footprint, dtype=bool)
+        if self.footprint is not None and self.footprint.shape != self.base.shape:
+            raise ValueError(f"footprint {self.footprint.shape} and base grid {self.base.shape} differ in shape")
+        self.north_offset, self.east_offset = int(north_offset), int(east_offset)
+        self.safety_m = float(safety_m)
+        self.confirm_hits, self.free_to_clear = int(confirm_hits), int(free_to_clear)
+        self.explain_tolerance_m, self.arc_step_m = float(explain_tolerance_m), float(arc_step_m)
+        shape = self.base.shape
+        self.hit_count = np.zeros(shape, np.uint16)
+        self.free_count = np.zeros(shape, np.uint16)
+        self.hits = np.zeros(shape, bool)
+        self.inflated = np.zeros(shape, bool)
+        self.known = np.zeros(shape, bool)
+        self._grid = self.base.copy()
+        self.version = 0
+        self.scans = 0
+        self.map_cells_seen_free = 0
+
+    @classmethod
+    def for_grid_map(cls, grid_map, footprint: np.ndarray | None, **kwargs) -> LiveMap:
+        """The layer over a :class:`~.grid.GridMap`'s grid (``footprint``: its obstacles without margin)."""
+        return cls(grid_map.grid, footprint, grid_map.north_offset, grid_map.east_offset, grid_map.safety_m,
+                   **kwargs)
+
+    @property
+    def grid(self) -> np.ndarray:
+        """The planning grid: the map's C-space or the inflated observed obstacles (do not modify)."""
+        return self._grid
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.base.shape
+
+    def cell_of(self, north_m: float, east_m: float) -> tuple[int, int]:
+        return int(math.floor(north_m - self.north_offset)), int(math.floor(east_m - self.east_offset))
+
+    def hit_cells_ne(self) -> np.ndarray:
+        """Map ``(north_m, east_m)`` of every observed obstacle cell's centre, ``(K, 2)``."""
+        cells = np.argwhere(self.hits)
+        return cells + (self.north_offset + 0.5, self.east_offset + 0.5)
+
+    def hit_boxes(self, altitude_m: float, height_m: float | None = None) -> np.ndarray:
+        """Observed obstacle cells as ``colliders.csv`` boxes ``(K, 6)``, 1 m square, standing on the ground up to
+        ``height_m`` (default: twice the altitude: the sensor saw them at the altitude, not their tops)."""
+        top = 2.0 * altitude_m if height_m is None else height_m
+        centres = self.hit_cells_ne()
+        out = np.empty((len(centres), 6))
+        out[:, :2] = centres
+        out[:, 2] = out[:, 5] = top / 2.0
+        out[:, 3] = out[:, 4] = 0.5
+        return out
+
+    def clearance_m(self, north_m: float, east_m: float, direction_north: float, direction_east: float,
+                    max_m: float, step_m: float = 0.25) -> float:
+        """How far (m, up to ``max_m``) the ray from the map point along the unit direction stays out of the
+        observed obstacles' margin (the inflated layer; the map's own buildings are not looked at).
+
+        >>> live = LiveMap(np.zeros((20, 20), bool), None, 0, 0, safety_m=2.0, confirm_hits=1)
+        >>> _ = live.add_scan(2.5, 10.5, np.radians([0.0]), np.radians(1.0), np.array([10.0]), 30.0)
+        >>> live.clearance_m(2.5, 10.5, 1.0, 0.0, 30.0), live.clearance_m(2.5, 10.5, 0.0, 1.0, 5.0)
+        (7.5, 5.0)
+        """
+        n, m = self.shape
+        for s in np.arange(0.0, max_m + 1e-9, step_m):
+            i = int(math.floor(north_m + direction_north * s - self.north_offset))
+            j = int(math.floor(east_m + direction_east * s - self.east_offset))
+            if 0 <= i < n and 0 <= j < m and self.inflated[i, j]:
+                return float(s)
+        return float(max_m)
+
+    # ------------------------------------------------------------------------------------------ scans
+    def _window(self, north_m: float, east_m: float, reach_m: float) -> tuple[int, int, int, int]:
+        n, m = self.shape
+        i, j = self.cell_of(north_m, east_m)
+        r = int(math.ceil(reach_m)) + 1
+        return max(i - r, 0), min(i + r + 1, n), max(j - r, 0), min(j + r + 1, m)
+
+    def _sector_of(self, bearings: np.ndarray, centres: np.ndarray, half_width: float) -> np.ndarray:
+        """Sector index of each bearing (-1 when in none)."""
+        k = len(centres)
+        if k * 2.0 * half_width >= _TWO_PI - 1e-6 and k > 1:  # contiguous, equal sectors from centres[0]
+            index = np.floor(((bearings - centres[0] + half_width) % _TWO_PI) / (2.0 * half_width)).astype(np.int64)
+            return np.minimum(index, k - 1)
+        diff = np.abs(_wrap(bearings[:, None] - centres[None, :]))
+        inside = diff <= half_width + 1e-12
+        return np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
+
+    def _predicted(self, p: np.ndarray, window, centres: np.ndarray, half_width: float,
+                   range_m: float) -> np.ndarray:
+        """The map's predicted range in each sector (inf where its footprint has nothing within ``range_m``)."""
+        out = np.full(len(centres), np.inf)
+        if self.footprint is None:
+            return out
+        i0, i1, j0, j1 = window
+        cells = np.argwhere(self.footprint[i0:i1, j0:j1]) + (i0, j0)
+        if len(cells) == 0:
+            return out
+        corner = cells + (self.north_offset, self.east_offset)
+        near = np.clip(p, corner, corner + 1.0)
+        dist = np.hypot(*(near - p).T)
+        pts = corner[:, None, :] + _SAMPLES[None, :, :]  # (C, 5, 2)
+        rel = pts - p
+        bearing = np.arctan2(rel[..., 1], rel[..., 0]).ravel()
+        sector = self._sector_of(bearing, centres, half_width)
+        d = np.repeat(dist, len(_SAMPLES))
+        ok = (sector >= 0) & (d <= range_m)
+        np.minimum.at(out, sector[ok], d[ok])
+        return out
+
+    def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
+                 max_range_m: float) -> ScanUpdate:
+        """Take one scan from the sensor at map ``(north_m, east_m)`` (see the module notes)."""
+        centres = np.asarray(bearings_rad, dtype=float) % _TWO_PI
+        dist = np.asarray(distances_m, dtype=float)
+        half = float(half_width_rad)
+        p = np.array([north_m, east_m], dtype=float)
+        window = self._window(north_m, east_m, max_range_m)
+        i0, i1, j0, j1 = window
+        self.scans += 1
+        if i0 >= i1 or j0 >= j1:
+            return ScanUpdate(0, 0, 0, 0, False)
+        predicted = self._predicted(p, window, centres, half, max_range_m)
+        reach = np.where(np.isinf(dist), max_range_m, dist)  # NaN stays NaN: nothing seen
+        # Seen free: cells wholly closer than the reading (with half a metre to spare) in a known sector.
+        ii, jj = np.mgrid[i0:i1, j0:j1]
+        cn = ii + self.north_offset + 0.5 - p[0]
+        ce = jj + self.east_offset + 0.5 - p[1]
+        r = np.hypot(cn, ce)
+        sector = self._sector_of(np.arctan2(ce, cn).ravel(), centres, half).reshape(r.shape)
+        limit = np.where(sector >= 0, reach[np.maximum(sector, 0)], np.nan)
+        free = (sector >= 0) & (r + 0.71 + 0.5 < limit) & (r <= max_range_m)
+        fi, fj = ii[free], jj[free]
+        self.free_count[fi, fj] = np.minimum(self.free_count[fi, fj].astype(np.int64) + 1, 65535)
+        self.known[fi, fj] = True
+        if self.footprint is not None:
+            self.map_cells_seen_free += int(self.footprint[fi, fj].sum())
+        # New obstacles: readings clearly shorter than the map predicts.
+        finite = np.isfinite(dist)
+        unexplained = finite & (dist < predicted - self.explain_tolerance_m)
+        explained = int((finite & ~unexplained).sum())
+        hit_cells = self._arc_cells(p, centres[unexplained], half, dist[unexplained])
+        before = self.hits.copy()
+        if len(hit_cells):
+            hi, hj = hit_cells[:, 0], hit_cells[:, 1]
+            self.hit_count[hi, hj] = np.minimum(self.hit_count[hi, hj].astype(np.int64) + 1, 65535)
+            self.known[hi, hj] = True
+        sub = (slice(i0, i1), slice(j0, j1))
+        counts = self.hit_count[sub].astype(np.int64)
+        confirmed = counts >= self.confirm_hits
+        dropped = self.hits[sub] & (self.free_count[sub].astype(np.int64) >= counts + self.free_to_clear)
+        self.hit_count[sub][dropped] = 0
+        self.free_count[sub][dropped] = 0
+        self.hits[sub] = (self.hits[sub] | confirmed) & ~dropped
+        changed = self.hits[sub] != before[sub]
+        new_hits = int((self.hits[sub] & ~before[sub]).sum())
+        cleared = int((before[sub] & ~self.hits[sub]).sum())
+        grid_changed = False
+        if changed.any():
+            grid_changed = self._reinflate(np.argwhere(changed) + (i0, j0))
+        return ScanUpdate(new_hits, cleared, explained, int(unexplained.sum()), grid_changed)
+
+    def _arc_cells(self, p: np.ndarray, centres: np.ndarray, half: float, dist: np.ndarray) -> np.ndarray:
+        """Unique cells (not map footprint, on the grid) on the arcs at ``dist`` across each sector."""
+        if len(dist) == 0:
+            return np.empty((0, 2), np.int64)
+        points = []
+        for bearing, d in zip(centres, dist):
+            d = max(float(d), 0.0)
+            steps = max(2, int(math.ceil(2.0 * half * max(d, 1.0) / self.arc_step_m)) + 1)
+            angles = np.linspace(bearing - half, bearing + half, steps)
+            points.append(p + d * np.column_stack([np.cos(angles), np.sin(angles)]))
+        pts = np.vstack(points)
+        cells = np.floor(pts - (self.north_offset, self.east_offset)).astype(np.int64)
+        n, m = self.shape
+        on = (cells[:, 0] >= 0) & (cells[:, 0] < n) & (cells[:, 1] >= 0) & (cells[:, 1] < m)
+        cells = np.unique(cells[on], axis=0)
+        if self.footprint is not None and len(cells):
+            cells = cells[~self.footprint[cells[:, 0], cells[:, 1]]]
+        return cells
+
+    def _reinflate(self, changed_cells: np.ndarray) -> bool:
+        """Recompute the inflated layer round changed hit cells; True if the planning grid changed."""
+        reach = int(math.ceil(self.safety_m)) + 2
+        n, m = self.shape
+        i0 = max(int(changed_cells[:, 0].min()) - reach, 0)
+        i1 = min(int(changed_cells[:, 0].max()) + reach + 1, n)
+        j0 = max(int(changed_cells[:, 1].min()) - reach, 0)
+        j1 = min(int(changed_cells[:, 1].max()) + reach + 1, m)
+        # Every hit that can reach the window, as 1 m boxes in map metres.
+        a0, a1, b0, b1 = max(i0 - reach, 0), min(i1 + reach, n), max(j0 - reach, 0), min(j1 + reach, m)
+        cells = np.argwhere(self.hits[a0:a1, b0:b1]) + (a0, b0)
+        lo_n = (cells[:, 0] + self.north_offset).astype(np.float64)
+        lo_e = (cells[:, 1] + self.east_offset).astype(np.float64)
+        window = kernels.rasterise(lo_n, lo_n + 1.0, lo_e, lo_e + 1.0, float(self.north_offset + i0),
+                                   float(self.east_offset + j0), self.safety_m, i1 - i0, j1 - j0)
+        window |= self.hits[i0:i1, j0:j1]
+        sub = (slice(i0, i1), slice(j0, j1))
+        self.inflated[sub] = window
+        new = self.base[sub] | window
+        grid_changed = bool((new != self._grid[sub]).any())
+        if grid_changed:
+            self._grid[sub] = new
+            self.version += 1
+        return grid_changed

@@ -1,0 +1,268 @@
+"""Receding-horizon replanning on the live layer: is the rest of the path still clear, and if not, a new one.
+
+:meth:`Replanner.check` walks the remaining path (from the vehicle's position through the waypoints still ahead)
+against the observed obstacles of a :class:`~.livemap.LiveMap`, up to ``look_ahead_m`` along it: *blocked* where
+it crosses an observed obstacle cell, *margin* where it only comes within the safety margin of one.
+:meth:`Replanner.replan` plans from the vehicle's position to the goal on the live planning grid (the map's
+C-space or the inflated observed obstacles) with the optimal grid search, prunes it with the grid's
+line-of-sight rule (and, for ``method="any-angle"``, pulls it taut), so every new leg is free on the live grid.
+
+The live layer is 2D, at the flight altitude: every 2D planner replans this way (the route it started from came
+from its own structure, a new one from the grid search, which is optimal on the same grid), and observed
+obstacles count as reaching above the altitude (their tops were never seen), so a replan never climbs over them.
+
+When the goal cannot be reached any more, :meth:`Replanner.fallback` finds the nearest safe point that can:
+free on the live grid (and landable, if a landing grid is given), in the vehicle's connected free space.
+
+Frames: map metres ``(north_m, east_m)``; waypoints ``[north_m, east_m, altitude_m, heading_rad]``. Whether the
+vehicle can turn onto a new route without stopping first is the mission's call (``skyroute.flight.replanning``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from skyroute.planning import any_angle
+from skyroute.planning.cspace import nearest_free_cell, snap_start_cell
+from skyroute.planning.errors import NoPathError, PlanningError
+from skyroute.planning.livemap import LiveMap
+from skyroute.planning.pruning import headings_along, path_length, prune_path
+from skyroute.planning.search import GridPlanner
+
+METHODS = ("grid", "any-angle")
+
+
+class GoalBlocked(PlanningError):
+    """The goal itself lies within the margin of an observed obstacle."""
+
+    def __init__(self, goal_ne: Sequence[float], fallback_ne: tuple[float, float] | None):
+        self.goal_ne, self.fallback_ne = tuple(goal_ne), fallback_ne
+        super().__init__(f"the goal ({goal_ne[0]:.1f} N, {goal_ne[1]:.1f} E) is blocked by an obstacle the map "
+                         "does not show" + _fallback_text(fallback_ne))
+
+
+class GoalUnreachable(PlanningError):
+    """Observed obstacles cut the goal off from the vehicle."""
+
+    def __init__(self, goal_ne: Sequence[float], fallback_ne: tuple[float, float] | None):
+        self.goal_ne, self.fallback_ne = tuple(goal_ne), fallback_ne
+        super().__init__(f"the goal ({goal_ne[0]:.1f} N, {goal_ne[1]:.1f} E) cannot be reached: obstacles the map "
+                         "does not show cut it off" + _fallback_text(fallback_ne))
+
+
+def _fallback_text(fallback_ne) -> str:
+    if fallback_ne is None:
+        return "; no reachable safe point"
+    return f"; nearest reachable safe point ({fallback_ne[0]:.1f} N, {fallback_ne[1]:.1f} E)"
+
+
+@dataclass(frozen=True)
+class Blockage:
+    """Where the remaining path first meets an observed obstacle: ``reason`` ``"blocked"`` (crosses one) or
+    ``"margin"`` (within the safety margin), ``along_m`` metres along the remaining path from the vehicle,
+    ``point_ne`` the map point."""
+
+    reason: str
+    along_m: float
+    point_ne: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Replan:
+    """A new route: ``waypoints`` (K, 4) from the vehicle's position to the goal, ``plan_ms`` the time it took,
+    ``length_m`` its length, ``expanded`` the search's expanded nodes, ``snapped`` whether the start lay within the
+    margin of an observed obstacle and the route first leads out of it."""
+
+    waypoints: np.ndarray
+    plan_ms: float
+    length_m: float
+    expanded: int
+    snapped: bool
+
+
+class Replanner:
+    """Checks the rest of the path and replans it on a live layer (see the module notes).
+
+    Parameters
+    ----------
+    live : LiveMap
+    goal_ne : (float, float)
+        The goal (map metres).
+    altitude_m : float
+        Flight altitude of the new waypoints.
+    look_ahead_m : float
+        How far along the remaining path :meth:`check` looks.
+    method : {"grid", "any-angle"}
+    landable : (n, m) bool array, optional
+        Cells where the vehicle may descend and land (e.g. free of every building's margin at all lower
+        altitudes); :meth:`fallback` picks among them.
+    step_m : float
+        Sampling step of :meth:`check` along the path (finer than a cell).
+    """
+
+    def __init__(self, live: LiveMap, goal_ne: Sequence[float], altitude_m: float, *, look_ahead_m: float = 60.0,
+                 method: str = "grid", landable: np.ndarray | None = None, step_m: float = 0.25) -> None:
+        if method not in METHODS:
+            raise ValueError(f"unknown replanning method {method!r}; choose from {METHODS}")
+        self.live, self.goal_ne, self.altitude_m = live, (float(goal_ne[0]), float(goal_ne[1])), float(altitude_m)
+        self.look_ahead_m, self.method, self.step_m = float(look_ahead_m), method, float(step_m)
+        self.landable = None if landable is None else np.asarray(landable, dtype=bool)
+        self._planner: GridPlanner | None = None
+        self._planner_version = -1
+
+    # ------------------------------------------------------------------------------------------ checking
+    def check(self, position_ne: Sequence[float], waypoints_ne: np.ndarray) -> Blockage | None:
+        """The first point within ``look_ahead_m`` where the path ``position -> waypoints_ne[0] -> ...`` meets an
+        observed obstacle or its margin, else None.
+
+        A hit 10 m north of the sensor (cell north 15..16 m), 2 m margin: the path north meets the margin 2 m before
+        the hit cell, at north 13 m, 7.5 m from the start:
+
+        >>> live = LiveMap(np.zeros((30, 30), bool), None, 0, 0, safety_m=2.0, confirm_hits=1)
+        >>> _ = live.add_scan(5.5, 15.5, np.radians([0.0]), np.radians(1.0), np.array([10.0]), 30.0)
+        >>> Replanner(live, (28.5, 15.5), 5.0).check((5.5, 15.5), np.array([[28.5, 15.5]]))
+        Blockage(reason='margin', along_m=7.5, point_ne=(13.0, 15.5))
+        """
+        pts = np.vstack([np.asarray(position_ne, float)[None, :2], np.asarray(waypoints_ne, float)[:, :2]])
+        live = self.live
+        travelled = 0.0
+        first_margin: Blockage | None = None
+        for a, b in zip(pts[:-1], pts[1:]):
+            leg = b - a
+            length = float(np.hypot(*leg))
+            if length < 1e-9:
+                continue
+            steps = np.arange(0.0, length + 1e-9, self.step_m)
+            if steps[-1] < length:
+                steps = np.append(steps, length)
+            steps = steps[travelled + steps <= self.look_ahead_m]
+            if len(steps) == 0:
+                break
+            samples = a + steps[:, None] * (leg / length)
+            cells = np.floor(samples - (live.north_offset, live.east_offset)).astype(np.int64)
+            n, m = live.shape
+            on = (cells[:, 0] >= 0) & (cells[:, 0] < n) & (cells[:, 1] >= 0) & (cells[:, 1] < m)
+            ci, cj = np.where(on, cells[:, 0], 0), np.where(on, cells[:, 1], 0)
+            hit = on & live.hits[ci, cj]
+            near = on & live.inflated[ci, cj]
+            if near.any() and first_margin is None:
+                k = int(np.argmax(near))
+                first_margin = Blockage("margin", round(travelled + float(steps[k]), 3),
+                                        (float(samples[k, 0]), float(samples[k, 1])))
+            if hit.any():
+                k = int(np.argmax(hit))
+                block = Blockage("blocked", round(travelled + float(steps[k]), 3),
+                                 (float(samples[k, 0]), float(samples[k, 1])))
+                return block if first_margin is None or first_margin.along_m >= block.along_m else first_margin
+            travelled += length
+            if travelled > self.look_ahead_m:
+                break
+        return first_margin
+
+    # ------------------------------------------------------------------------------------------- sensing
+    def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
+                 max_range_m: float):
+        """Feed one scan to the live layer (:meth:`LiveMap.add_scan`)."""
+        return self.live.add_scan(north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m)
+
+    def discovered_ne(self) -> np.ndarray:
+        """Map ``(north_m, east_m)`` of every observed obstacle cell's centre, ``(K, 2)``."""
+        return self.live.hit_cells_ne()
+
+    def clearance_m(self, north_m: float, east_m: float, direction_north: float, direction_east: float,
+                    max_m: float) -> float:
+        """How far the horizontal ray from the point along the unit direction stays out of every observed
+        obstacle's margin, up to ``max_m`` (m); the map's own buildings are the map's clearance function's."""
+        return self.live.clearance_m(north_m, east_m, direction_north, direction_east, max_m)
+
+    # ---------------------------------------------------------------------------------------- replanning
+    def _grid_planner(self) -> GridPlanner:
+        if self._planner is None or self._planner_version != self.live.version:
+            self._planner = GridPlanner(self.live.grid)
+            self._planner_version = self.live.version
+        return self._planner
+
+    def goal_blocked(self) -> bool:
+        """True if the goal's cell is blocked on the live grid by an observed obstacle (not by the map)."""
+        i, j = self.live.cell_of(*self.goal_ne)
+        n, m = self.live.shape
+        return 0 <= i < n and 0 <= j < m and bool(self.live.inflated[i, j])
+
+    def _start_cell(self, position_ne: Sequence[float]) -> tuple[tuple[int, int], bool]:
+        live = self.live
+        cell = live.cell_of(*position_ne)
+        n, m = live.shape
+        if not (0 <= cell[0] < n and 0 <= cell[1] < m) or not live.grid[cell]:
+            return cell, False
+        # Inside the margin: lead out to the nearest free cell seen by a straight leg that crosses no obstacle.
+        solid = live.hits | (live.footprint if live.footprint is not None else np.zeros_like(live.hits))
+        snapped = snap_start_cell(live.grid, solid, cell)
+        if snapped is None:
+            snapped = nearest_free_cell(live.grid, cell)
+        return (cell, False) if snapped is None else (snapped, True)
+
+    def replan(self, position_ne: Sequence[float]) -> Replan:
+        """A route from ``position_ne`` to the goal on the live grid.
+
+        Raises
+        ------
+        GoalBlocked, GoalUnreachable
+            With the nearest reachable safe point (:meth:`fallback`) when there is one.
+        PlanningError
+            When the vehicle's own position has no way out (off the grid, or boxed in).
+        """
+        t0 = time.perf_counter()
+        live = self.live
+        if self.goal_blocked():
+            raise GoalBlocked(self.goal_ne, self.fallback(position_ne))
+        start, snapped = self._start_cell(position_ne)
+        goal = live.cell_of(*self.goal_ne)
+        planner = self._grid_planner()
+        try:
+            path = planner.plan(start, goal)
+        except NoPathError as exc:
+            raise GoalUnreachable(self.goal_ne, self.fallback(position_ne)) from exc
+        cells = prune_path(live.grid, path.cells)
+        if self.method == "any-angle":
+            cells = any_angle.taut_path(live.grid, cells)[0]
+        points = cells + (live.north_offset + 0.5, live.east_offset + 0.5)
+        here = np.asarray(position_ne, float)[:2]
+        points = np.vstack([here, points if snapped else points[1:]]) if len(points) > 1 else np.vstack([here,
+                                                                                                        points])
+        points[-1] = self.goal_ne  # the goal itself (within its cell, which is free)
+        waypoints = np.column_stack([points, np.full(len(points), self.altitude_m), headings_along(points)])
+        plan_ms = (time.perf_counter() - t0) * 1e3
+        return Replan(waypoints, plan_ms, path_length(points), path.expanded, snapped)
+
+    def fallback(self, position_ne: Sequence[float]) -> tuple[float, float] | None:
+        """The free (and landable) cell centre nearest the goal that the vehicle can reach from ``position_ne``
+        (4-connected free space on the live grid: the search's diagonal rule never joins more), or None."""
+        live = self.live
+        start, _ = self._start_cell(position_ne)
+        n, m = live.shape
+        if not (0 <= start[0] < n and 0 <= start[1] < m) or live.grid[start]:
+            return None
+        labels, _count = ndimage.label(~live.grid)
+        mine = labels == labels[start]
+        if self.landable is not None:
+            mine &= self.landable
+        cells = np.argwhere(mine)
+        if len(cells) == 0:
+            return None
+        centres = cells + (live.north_offset + 0.5, live.east_offset + 0.5)
+        k = int(np.argmin(np.hypot(*(centres - self.goal_ne).T)))
+        return float(centres[k, 0]), float(centres[k, 1])
+
+    def route_to(self, position_ne: Sequence[float], target_ne: Sequence[float]) -> Replan:
+        """A route to another point (e.g. the fallback), like :meth:`replan`."""
+        saved = self.goal_ne
+        self.goal_ne = (float(target_ne[0]), float(target_ne[1]))
+        try:
+            return self.replan(position_ne)
+        finally:
+            self.goal_ne = saved

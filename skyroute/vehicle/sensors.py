@@ -1,0 +1,199 @@
+"""Obstacle sensor messages -> SI readings: :class:`RangeScan` (horizontal sectors) and :class:`HeightReading`.
+
+Translated at the vehicle boundary like the rest of the telemetry (part of the ``vehicle`` package, the only code
+that imports pymavlink), and collected by a :class:`SensorFeed` that the link's reader thread feeds and the
+mission drains.
+
+What the autopilots send (``sim/sensors.py`` streams the same):
+
+* OBSTACLE_DISTANCE (PX4's collision-prevention map; any MAVLink range sensor): ``distances[i]`` in cm for the
+  sector centred on ``angle_offset + i * increment`` degrees, in ``frame`` MAV_FRAME_GLOBAL / LOCAL_NED (from
+  north) or BODY_FRD (from the nose); ``increment_f`` overrides ``increment`` when set. ``UINT16_MAX`` = unknown,
+  ``> max_distance`` = nothing within range; a reading below ``min_distance`` is kept as an obstacle that close
+  (the spec: 0 means right in front of the sensor).
+* DISTANCE_SENSOR with a horizontal orientation (MAV_SENSOR_ROTATION_NONE .. YAW_315, from the nose; ArduPilot's
+  AP_Proximity sends one per 45 degree sector): one sector, ``horizontal_fov`` wide when given, else the
+  orientation step (45 degrees). ``current_distance >= max_distance`` = nothing within range (ArduPilot reports an
+  empty sector as its maximum), ``UINT16_MAX`` = unknown. PITCH_270 (downward) is the height above what is below.
+  Other orientations (up, pitched) are ignored.
+
+Bearings are radians clockwise from north in ``[0, 2 pi)``; body-frame ones are turned by the vehicle's heading
+at translation time (the latest ATTITUDE). Distances in metres, ``inf`` = nothing within ``max_range_m``, ``NaN``
+= unknown.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+UINT16_MAX = 65535
+#: Horizontal orientations and their bearing from the nose (degrees).
+_YAW_ORIENTATIONS = {getattr(mavlink, f"MAV_SENSOR_ROTATION_{name}"): deg for name, deg in (
+    ("NONE", 0), ("YAW_45", 45), ("YAW_90", 90), ("YAW_135", 135), ("YAW_180", 180), ("YAW_225", 225),
+    ("YAW_270", 270), ("YAW_315", 315))}
+_NORTH_FRAMES = {mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_LOCAL_NED}
+_TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class RangeScan:
+    """Horizontal range sectors around the vehicle, in SI units.
+
+    ``bearings_rad`` (K,) each sector's centre (clockwise from north), ``half_width_rad`` the sectors' half width,
+    ``distances_m`` (K,) to the nearest obstacle in the sector (``inf`` none within ``max_range_m``, ``NaN``
+    unknown), ``min_range_m`` / ``max_range_m`` the sensor's limits, ``time_s`` the autopilot's time since boot of
+    the sample, ``received_s`` our monotonic clock when it arrived, ``source`` the message name.
+    """
+
+    bearings_rad: np.ndarray
+    half_width_rad: float
+    distances_m: np.ndarray
+    min_range_m: float
+    max_range_m: float
+    time_s: float
+    received_s: float
+    source: str
+
+
+@dataclass(frozen=True)
+class HeightReading:
+    """The downward rangefinder: ``height_m`` above what is below (``inf`` beyond ``max_range_m``, NaN unknown)."""
+
+    height_m: float
+    min_range_m: float
+    max_range_m: float
+    time_s: float
+    received_s: float
+
+
+def _cm_to_m(value: int, min_cm: int, max_cm: int, empty_at_max: bool) -> float:
+    if value == UINT16_MAX:
+        return math.nan
+    if value > max_cm or (empty_at_max and value >= max_cm):
+        return math.inf
+    return value / 100.0
+
+
+def scan_from_obstacle_distance(msg, received_s: float, heading_rad: float) -> RangeScan | None:
+    """OBSTACLE_DISTANCE -> :class:`RangeScan`; None for a body-frame scan without a known heading, or no sectors.
+
+    >>> m = mavlink.MAVLink_obstacle_distance_message(2_000_000, 0, [2500] + [3001] * 71, 5, 20, 3000,
+    ...                                               increment_f=5.0, frame=mavlink.MAV_FRAME_GLOBAL)
+    >>> s = scan_from_obstacle_distance(m, 0.0, math.nan)
+    >>> len(s.bearings_rad), float(s.distances_m[0]), bool(np.isinf(s.distances_m[1])), s.time_s
+    (72, 25.0, True, 2.0)
+    """
+    increment = float(msg.increment_f) if msg.increment_f > 0 else float(msg.increment)
+    if not increment > 0:
+        return None
+    count = min(len(msg.distances), int(round(360.0 / increment)))
+    if msg.frame in _NORTH_FRAMES:
+        base = 0.0
+    elif msg.frame == mavlink.MAV_FRAME_BODY_FRD:
+        if not math.isfinite(heading_rad):
+            return None
+        base = heading_rad
+    else:
+        return None
+    raw = list(msg.distances[:count])
+    distances = np.array([_cm_to_m(v, msg.min_distance, msg.max_distance, empty_at_max=False) for v in raw])
+    bearings = (base + np.radians(float(msg.angle_offset) + increment * np.arange(count))) % _TWO_PI
+    return RangeScan(bearings, math.radians(increment) / 2.0, distances, msg.min_distance / 100.0,
+                     msg.max_distance / 100.0, msg.time_usec * 1e-6, received_s, "OBSTACLE_DISTANCE")
+
+
+def reading_from_distance_sensor(msg, received_s: float, heading_rad: float) -> RangeScan | HeightReading | None:
+    """DISTANCE_SENSOR -> a one-sector :class:`RangeScan` (horizontal), a :class:`HeightReading` (downward), or
+    None (another orientation, or a horizontal one without a known heading).
+
+    >>> m = mavlink.MAVLink_distance_sensor_message(1500, 20, 3000, 1800, 0, 12, mavlink.MAV_SENSOR_ROTATION_YAW_90, 0)
+    >>> s = reading_from_distance_sensor(m, 0.0, math.radians(90.0))   # nose east: the sector looks south
+    >>> round(math.degrees(s.bearings_rad[0])), float(s.distances_m[0]), round(math.degrees(s.half_width_rad), 1)
+    (180, 18.0, 22.5)
+    """
+    if msg.orientation == mavlink.MAV_SENSOR_ROTATION_PITCH_270:
+        height = _cm_to_m(msg.current_distance, msg.min_distance, msg.max_distance, empty_at_max=True)
+        return HeightReading(height, msg.min_distance / 100.0, msg.max_distance / 100.0, msg.time_boot_ms * 1e-3,
+                             received_s)
+    deg = _YAW_ORIENTATIONS.get(msg.orientation)
+    if deg is None or not math.isfinite(heading_rad):
+        return None
+    fov = float(getattr(msg, "horizontal_fov", 0.0) or 0.0)
+    half = fov / 2.0 if fov > 0 else math.radians(22.5)
+    distance = _cm_to_m(msg.current_distance, msg.min_distance, msg.max_distance, empty_at_max=True)
+    bearing = (heading_rad + math.radians(deg)) % _TWO_PI
+    return RangeScan(np.array([bearing]), half, np.array([distance]), msg.min_distance / 100.0,
+                     msg.max_distance / 100.0, msg.time_boot_ms * 1e-3, received_s, "DISTANCE_SENSOR")
+
+
+def translate_sensor(msg, received_s: float, heading_rad: float) -> RangeScan | HeightReading | None:
+    """Any sensor message -> its reading (None for messages that are not, or cannot be placed)."""
+    kind = msg.get_type()
+    if kind == "OBSTACLE_DISTANCE":
+        return scan_from_obstacle_distance(msg, received_s, heading_rad)
+    if kind == "DISTANCE_SENSOR":
+        return reading_from_distance_sensor(msg, received_s, heading_rad)
+    return None
+
+
+class SensorFeed:
+    """Thread-safe queue of sensor readings: the link's reader calls :meth:`handle`, the mission :meth:`drain`.
+
+    ``keep`` readings at most are queued (the oldest are dropped, counted in ``dropped``); ``streaming_s`` is how
+    recent a horizontal scan must be for :attr:`streaming`.
+    """
+
+    MESSAGES = ("OBSTACLE_DISTANCE", "DISTANCE_SENSOR")
+
+    def __init__(self, keep: int = 512, streaming_s: float = 2.0, clock=time.monotonic) -> None:
+        self._queue: deque = deque(maxlen=keep)
+        self._cond = threading.Condition()
+        self.clock = clock
+        self.streaming_s = streaming_s
+        self.dropped = 0
+        self.scans = 0
+        self.last_scan_s = math.nan
+        self.height: HeightReading | None = None
+
+    def handle(self, msg, received_s: float, heading_rad: float) -> bool:
+        """Translate and queue ``msg`` if it is a sensor message; True if it was one."""
+        if msg.get_type() not in self.MESSAGES:
+            return False
+        reading = translate_sensor(msg, received_s, heading_rad)
+        if reading is None:
+            return True
+        with self._cond:
+            if isinstance(reading, HeightReading):
+                self.height = reading
+            else:
+                self.scans += 1
+                self.last_scan_s = received_s
+            if len(self._queue) == self._queue.maxlen:
+                self.dropped += 1
+            self._queue.append(reading)
+            self._cond.notify_all()
+        return True
+
+    def drain(self) -> list[RangeScan | HeightReading]:
+        """Every reading queued since the last call, oldest first."""
+        with self._cond:
+            out = list(self._queue)
+            self._queue.clear()
+            return out
+
+    def wait(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for a reading to be queued; True if one is."""
+        with self._cond:
+            return self._cond.wait_for(lambda: bool(self._queue), timeout=timeout_s)
+
+    @property
+    def streaming(self) -> bool:
+        """True while horizontal scans arrive (the last within ``streaming_s``)."""
+        return self.clock() - self.last_scan_s <= self.streaming_s  # False while NaN

@@ -1,0 +1,92 @@
+"""The mission's sensing step with a fake vehicle and a real live layer: readings in, blockages out."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from skyroute.flight.replanning import ReplanRecord, Sensing, braking_distance_m, can_turn_in_time
+from skyroute.planning.livemap import LiveMap
+from skyroute.planning.replan import Blockage, Replanner
+
+
+@dataclass
+class Scan:
+    bearings_rad: np.ndarray
+    half_width_rad: float
+    distances_m: np.ndarray
+    max_range_m: float
+    received_s: float
+
+
+@dataclass
+class Height:
+    height_m: float
+    received_s: float
+
+
+class FakeVehicle:
+    def __init__(self):
+        self.queue: list = []
+        self.sensing = True
+
+    def sensor_readings(self):
+        out, self.queue = self.queue, []
+        return out
+
+
+def _wall_ahead(distance_m: float, received_s: float) -> Scan:
+    d = np.full(72, np.inf)
+    d[0] = distance_m
+    return Scan(np.radians(np.arange(0.0, 360.0, 5.0)), math.radians(2.5), d, 30.0, received_s)
+
+
+def _sensing(now):
+    live = LiveMap(np.zeros((80, 40), bool), None, 0, 0, safety_m=3.0, confirm_hits=2)
+    vehicle = FakeVehicle()
+    return Sensing(vehicle, Replanner(live, (75.5, 20.5), 5.0), clock=lambda: now[0]), vehicle, live
+
+
+def test_a_wall_seen_twice_blocks_the_path_and_the_latency_runs_from_the_first_reading():
+    now = [10.0]
+    sensing, vehicle, _ = _sensing(now)
+    path = np.array([[75.5, 20.5]])
+    vehicle.queue = [_wall_ahead(20.0, 9.99), Height(5.0, 9.99)]
+    assert sensing.step((5.5, 20.5), path) is None  # one scan: not confirmed yet
+    vehicle.queue = [_wall_ahead(20.0, 10.05)]
+    now[0] = 10.06
+    block = sensing.step((5.5, 20.5), path)
+    # The hit at north 25.5 is cell 25..26; its 3 m margin starts at cell 22..23's south edge, 16.5 m ahead.
+    assert block is not None and block.reason == "margin" and block.along_m == pytest.approx(16.5)
+    assert sensing.latency_ms() == pytest.approx(10.0)  # from the reading at 10.05 (the first was all clear)
+    assert sensing.scans == 2 and sensing.heights == 1
+    assert len(sensing.discovered_ne()) > 0
+
+
+def test_with_replanning_off_or_no_sensor_nothing_is_checked_but_readings_are_drained():
+    now = [0.0]
+    sensing, vehicle, live = _sensing(now)
+    sensing.obstacles = None
+    vehicle.queue = [_wall_ahead(10.0, 0.0)] * 3
+    assert sensing.step((5.5, 20.5), np.array([[75.5, 20.5]])) is None and vehicle.queue == []
+    assert live.scans == 0 and not sensing.active
+    sensing2, vehicle2, _ = _sensing(now)
+    vehicle2.sensing = False
+    assert not sensing2.active
+
+
+def test_replan_records_describe_themselves_in_one_line():
+    rec = ReplanRecord(1.0, 10.0, 20.0, "margin", 17.0, 4.2, 9.8, False, np.zeros((3, 4)))
+    line = rec.describe()
+    assert "\n" not in line and "17.0 m ahead" in line and "4.2 ms" in line and "9.8 ms" in line
+
+
+def test_braking_decides_whether_to_turn_without_stopping():
+    assert braking_distance_m(10.0, 2.5, reaction_s=0.0) == pytest.approx(20.0)
+    far, near = Blockage("margin", 25.0, (0.0, 0.0)), Blockage("margin", 8.0, (0.0, 0.0))
+    assert can_turn_in_time(far, 10.0, 3.0, 5.0) and not can_turn_in_time(near, 10.0, 3.0, 5.0)
+    assert can_turn_in_time(near, 2.0, 3.0, 5.0) and can_turn_in_time(None, 20.0, 1.0, 5.0)
+    assert not can_turn_in_time(Blockage("blocked", 2.0, (0.0, 0.0)), 1.0, 3.0, 5.0)

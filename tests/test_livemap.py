@@ -1,0 +1,179 @@
+"""The live occupancy layer and the replanner, fed scans that the SIM's sensor model computes from true boxes (the
+client's layer and the sim's sensor are separate code; these tests check they agree on what a wall is)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sim.sensors import sector_minima
+from skyroute.planning.cspace import create_grid
+from skyroute.planning.grid import GridMap
+from skyroute.planning.livemap import LiveMap
+from skyroute.planning.pruning import line_of_sight
+from skyroute.planning.replan import GoalBlocked, GoalUnreachable, Replanner
+
+ALT, SAFETY = 5.0, 3.0
+#: Two long blocks with a 24 m north-south street between them (east -12..12), posts fixing a 200 m extent.
+STALE = np.array([[0.0, 42.0, 15.0, 90.0, 30.0, 15.0], [0.0, -42.0, 15.0, 90.0, 30.0, 15.0],
+                  [-99.5, -99.5, 0.5, 0.5, 0.5, 0.5], [99.5, 99.5, 0.5, 0.5, 0.5, 0.5]])
+#: The truth: a wall across the street at north 20..22, and a side street open at north -30..-10 east of it.
+WALL = np.array([[21.0, 0.0, 15.0, 1.0, 13.0, 15.0]])
+
+
+def _live(obstacles=STALE, **kwargs) -> tuple[LiveMap, GridMap]:
+    gm = GridMap.build(obstacles, ALT, SAFETY)
+    footprint = create_grid(obstacles, ALT, 0.0)[0]
+    return LiveMap.for_grid_map(gm, footprint, **kwargs), gm
+
+
+def _scan(truth: np.ndarray, p, sectors: int, heading_rad: float = 0.0, rng=None, noise_m=0.0, dropout=0.0):
+    """What the sim's sensor reports at ``p``: (bearings, half width, distances) in the client's terms."""
+    lo, hi = truth[:, :3] - truth[:, 3:], truth[:, :3] + truth[:, 3:]
+    crossing = (lo[:, 2] <= ALT) & (ALT <= hi[:, 2])
+    first = 0.0 if sectors == 72 else heading_rad
+    d = sector_minima(lo[crossing, :2], hi[crossing, :2], p[0], p[1], sectors, first, 30.0)
+    if rng is not None:
+        finite = np.isfinite(d)
+        d[finite] = np.clip(d[finite] + rng.normal(0.0, noise_m, finite.sum()), 0.2, 30.0)
+        d[rng.random(sectors) < dropout] = np.nan
+    width = 2 * math.pi / sectors
+    return (first + width * np.arange(sectors)) % (2 * math.pi), width / 2, d
+
+
+def _fly_north(live: LiveMap, truth: np.ndarray, sectors: int, until_north_m: float, **noise):
+    for north in np.arange(-80.0, until_north_m, 1.0):
+        p = (north, 0.5)
+        bearings, half, d = _scan(truth, p, sectors, **noise)
+        if sectors == 72:
+            live.add_scan(*p, bearings, half, d, 30.0)
+        else:  # ArduPilot: one message per sector
+            for b, v in zip(bearings, d):
+                live.add_scan(*p, np.array([b]), half, np.array([v]), 30.0)
+
+
+def _distance_to_boxes(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    lo, hi = boxes[:, :2] - boxes[:, 3:5], boxes[:, :2] + boxes[:, 3:5]
+    gap = np.maximum(np.maximum(lo[None] - points[:, None], points[:, None] - hi[None]), 0.0)
+    return np.hypot(gap[..., 0], gap[..., 1]).min(axis=1)
+
+
+@pytest.mark.parametrize("sectors", [72, 8])
+def test_the_map_explains_its_own_buildings_so_an_unchanged_street_adds_no_obstacle(sectors):
+    live, _ = _live()
+    _fly_north(live, STALE, sectors, 60.0)
+    assert live.hits.sum() == 0 and live.scans > 0
+    assert live.known.sum() > 500  # the street ahead and behind was seen free
+
+
+@pytest.mark.parametrize("sectors", [72, 8])
+def test_a_new_wall_is_seen_on_the_wall_and_blocks_the_street(sectors):
+    live, gm = _live()
+    truth = np.vstack([STALE, WALL])
+    _fly_north(live, truth, sectors, 0.0)  # up to 20 m short of the wall
+    hits = live.hit_cells_ne()
+    assert len(hits) > 5
+    assert _distance_to_boxes(hits, WALL).max() <= 1.5  # every hit cell is at the wall
+    # The street is cut: no path north through it on the live grid (the map's grid still has one).
+    assert not line_of_sight(live.grid, live.cell_of(0.5, 0.5), live.cell_of(40.5, 0.5))
+    assert line_of_sight(gm.grid, gm.cell_of(0.5, 0.5), gm.cell_of(40.5, 0.5))
+
+
+def test_noise_and_dropout_still_find_the_wall_with_few_stray_hits():
+    live, _ = _live()
+    truth = np.vstack([STALE, WALL])
+    _fly_north(live, truth, 72, 0.0, rng=np.random.default_rng(7), noise_m=0.3, dropout=0.1)
+    hits = live.hit_cells_ne()
+    near_wall = _distance_to_boxes(hits, WALL) <= 1.5
+    assert near_wall.sum() > 5
+    assert (~near_wall).sum() <= 0.05 * len(hits) + 2
+
+
+def test_observed_obstacles_are_inflated_by_the_maps_euclidean_rule():
+    live, _ = _live(confirm_hits=1)
+    bearings = np.radians(np.arange(0.0, 360.0, 5.0))
+    d = np.full(72, np.inf)
+    d[9] = 10.0  # one sector due east: a hit 10 m east of (0.5, 0.5)... inside the street
+    live.add_scan(-50.5, 0.5, bearings, math.radians(2.5), d, 30.0)
+    hit_cells = np.argwhere(live.hits)
+    assert len(hit_cells) >= 1
+    # Brute force: a cell is blocked iff its square comes closer than the margin to some hit cell's square.
+    n, m = live.shape
+    ii, jj = np.mgrid[0:n, 0:m]
+    expect = np.zeros((n, m), bool)
+    for i, j in hit_cells:
+        gap_n = np.maximum(np.maximum(i - (ii + 1), ii - (i + 1)), 0)
+        gap_e = np.maximum(np.maximum(j - (jj + 1), jj - (j + 1)), 0)
+        expect |= np.hypot(gap_n, gap_e) < SAFETY
+        expect[i, j] = True
+    assert np.array_equal(live.inflated, expect)
+    assert np.array_equal(live.grid, live.base | expect)
+
+
+def test_one_stray_reading_is_not_an_obstacle_and_hits_seen_free_again_are_dropped():
+    live, _ = _live(confirm_hits=2, free_to_clear=3)
+    bearings = np.radians(np.arange(0.0, 360.0, 5.0))
+    stray = np.full(72, np.inf)
+    stray[0] = 15.0
+    live.add_scan(-50.5, 0.5, bearings, math.radians(2.5), stray, 30.0)
+    assert live.hits.sum() == 0  # one scan: not confirmed
+    live.add_scan(-50.5, 0.5, bearings, math.radians(2.5), stray, 30.0)
+    assert live.hits.sum() > 0
+    version = live.version
+    clear = np.full(72, np.inf)
+    for _ in range(6):
+        live.add_scan(-50.5, 0.5, bearings, math.radians(2.5), clear, 30.0)
+    assert live.hits.sum() == 0 and not live.inflated.any() and live.version > version
+
+
+def test_a_walled_corridor_leaves_the_goal_unreachable_with_a_fallback_short_of_the_wall():
+    corridor = np.array([[0.0, 56.0, 15.0, 100.0, 44.0, 15.0], [0.0, -56.0, 15.0, 100.0, 44.0, 15.0]])
+    live, _ = _live(corridor)
+    _fly_north(live, np.vstack([corridor, WALL]), 72, 0.0)
+    start, goal = (0.5, 0.5), (60.5, 0.5)
+    replanner = Replanner(live, goal, ALT)
+    block = replanner.check(start, np.array([goal]))
+    assert block is not None and block.reason == "margin" and 15.0 <= block.along_m <= 20.0
+    with pytest.raises(GoalUnreachable) as info:
+        replanner.replan(start)
+    fallback = info.value.fallback_ne
+    # The nearest reachable free point is in the street just short of the wall's margin.
+    assert fallback is not None and 20.0 - SAFETY - 2.0 <= fallback[0] < 20.0 - SAFETY
+    assert not live.grid[live.cell_of(*fallback)]
+
+
+def test_replan_with_a_detour_returns_free_legs_and_starts_where_the_vehicle_is():
+    side_street = np.array([[0.0, 42.0, 15.0, 90.0, 30.0, 15.0], [-60.0, -42.0, 15.0, 30.0, 30.0, 15.0],
+                            [50.0, -42.0, 15.0, 40.0, 30.0, 15.0], [-99.5, -99.5, 0.5, 0.5, 0.5, 0.5],
+                            [99.5, 99.5, 0.5, 0.5, 0.5, 0.5]])  # a gap in the west block at north -30..10
+    live, _ = _live(side_street)
+    _fly_north(live, np.vstack([side_street, WALL]), 72, 0.0)
+    replanner = Replanner(live, (60.5, 0.5), ALT)
+    route = replanner.replan((0.5, 0.5))
+    assert tuple(route.waypoints[0, :2]) == (0.5, 0.5) and tuple(route.waypoints[-1, :2]) == (60.5, 0.5)
+    cells = [live.cell_of(*p) for p in route.waypoints[:, :2]]
+    assert all(line_of_sight(live.grid, a, b) for a, b in zip(cells[:-1], cells[1:]))
+    assert route.plan_ms > 0 and np.all(route.waypoints[:, 2] == ALT)
+    assert replanner.check((0.5, 0.5), route.waypoints[1:]) is None
+
+
+def test_a_goal_inside_an_observed_obstacles_margin_is_blocked():
+    live, _ = _live(confirm_hits=1)
+    bearings = np.radians(np.arange(0.0, 360.0, 5.0))
+    d = np.full(72, np.inf)
+    d[0] = 20.0
+    live.add_scan(0.5, 0.5, bearings, math.radians(2.5), d, 30.0)
+    with pytest.raises(GoalBlocked):
+        Replanner(live, (19.5, 0.5), ALT).replan((0.5, 0.5))
+
+
+def test_a_start_inside_the_margin_leads_out_first():
+    live, _ = _live(confirm_hits=1)
+    bearings = np.radians(np.arange(0.0, 360.0, 5.0))
+    d = np.full(72, np.inf)
+    d[0] = 2.0  # 2 m ahead, inside the 3 m margin
+    live.add_scan(-40.5, 0.5, bearings, math.radians(2.5), d, 30.0)
+    route = Replanner(live, (-70.5, 0.5), ALT).replan((-40.5, 0.5))
+    assert route.snapped and not live.grid[live.cell_of(*route.waypoints[1, :2])]

@@ -1,0 +1,93 @@
+"""Sensor messages encoded to bytes and decoded as the link does, translated into SI readings."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as M
+
+from skyroute.vehicle.sensors import HeightReading, RangeScan, SensorFeed, translate_sensor
+
+
+def _wire(msg):
+    """``msg`` packed into MAVLink 2 bytes and parsed back (what the link's reader gets)."""
+    sender = M.MAVLink(io.BytesIO(), 1, 1)
+    data = msg.pack(sender)
+    (decoded,) = M.MAVLink(io.BytesIO(), 255, 191).parse_buffer(data)
+    return decoded
+
+
+def _obstacle_distance(distances, frame=M.MAV_FRAME_GLOBAL, increment=5, increment_f=5.0, offset=0.0):
+    return _wire(M.MAVLink_obstacle_distance_message(3_500_000, M.MAV_DISTANCE_SENSOR_LASER, distances, increment,
+                                                     20, 3000, increment_f=increment_f, angle_offset=offset,
+                                                     frame=frame))
+
+
+def test_obstacle_distance_north_aligned_sectors_in_metres():
+    cells = [65535] + [1234, 3001, 3000, 0] + [3001] * 67
+    scan = translate_sensor(_obstacle_distance(cells), 7.0, heading_rad=1.0)  # heading ignored: north frame
+    assert isinstance(scan, RangeScan) and scan.source == "OBSTACLE_DISTANCE"
+    assert np.degrees(scan.bearings_rad[:3]).round(6).tolist() == [0.0, 5.0, 10.0]
+    assert math.isnan(scan.distances_m[0])  # UINT16_MAX: unknown
+    assert scan.distances_m[1] == pytest.approx(12.34)
+    assert math.isinf(scan.distances_m[2])  # max + 1: nothing there
+    assert scan.distances_m[3] == pytest.approx(30.0)  # exactly max is still an obstacle at max for PX4
+    assert scan.distances_m[4] == 0.0
+    assert (scan.min_range_m, scan.max_range_m, scan.time_s, scan.received_s) == (0.2, 30.0, 3.5, 7.0)
+    assert scan.half_width_rad == pytest.approx(math.radians(2.5))
+
+
+def test_obstacle_distance_in_the_body_frame_turns_with_the_heading_and_needs_one():
+    msg = _obstacle_distance([1000] * 72, frame=M.MAV_FRAME_BODY_FRD, offset=-10.0)
+    scan = translate_sensor(msg, 0.0, heading_rad=math.radians(90.0))
+    assert math.degrees(scan.bearings_rad[0]) == pytest.approx(80.0)
+    assert translate_sensor(msg, 0.0, heading_rad=math.nan) is None
+
+
+def test_obstacle_distance_takes_increment_f_and_only_one_turn_of_sectors():
+    scan = translate_sensor(_obstacle_distance([500] * 72, increment=10, increment_f=10.0), 0.0, 0.0)
+    assert len(scan.bearings_rad) == 36 and scan.half_width_rad == pytest.approx(math.radians(5.0))
+
+
+@pytest.mark.parametrize("orientation,heading_deg,bearing_deg", [
+    (M.MAV_SENSOR_ROTATION_NONE, 0.0, 0.0), (M.MAV_SENSOR_ROTATION_YAW_45, 0.0, 45.0),
+    (M.MAV_SENSOR_ROTATION_YAW_315, 90.0, 45.0), (M.MAV_SENSOR_ROTATION_YAW_180, 270.0, 90.0)])
+def test_proximity_distance_sensor_sector_bearing_from_the_heading(orientation, heading_deg, bearing_deg):
+    msg = _wire(M.MAVLink_distance_sensor_message(1200, 20, 3000, 850, M.MAV_DISTANCE_SENSOR_LASER, 11,
+                                                  orientation, 0))
+    scan = translate_sensor(msg, 0.0, math.radians(heading_deg))
+    assert math.degrees(scan.bearings_rad[0]) == pytest.approx(bearing_deg % 360.0)
+    assert scan.distances_m[0] == pytest.approx(8.5) and scan.time_s == pytest.approx(1.2)
+    assert scan.half_width_rad == pytest.approx(math.radians(22.5))
+
+
+def test_proximity_sector_at_its_maximum_is_empty_and_unknown_is_nan():
+    empty = _wire(M.MAVLink_distance_sensor_message(0, 20, 3000, 3000, 0, 10, M.MAV_SENSOR_ROTATION_NONE, 0))
+    unknown = _wire(M.MAVLink_distance_sensor_message(0, 20, 3000, 65535, 0, 10, M.MAV_SENSOR_ROTATION_NONE, 0))
+    assert math.isinf(translate_sensor(empty, 0.0, 0.0).distances_m[0])
+    assert math.isnan(translate_sensor(unknown, 0.0, 0.0).distances_m[0])
+
+
+def test_downward_rangefinder_is_a_height_and_upward_is_ignored():
+    down = _wire(M.MAVLink_distance_sensor_message(500, 20, 4000, 523, 0, 0, M.MAV_SENSOR_ROTATION_PITCH_270, 0))
+    reading = translate_sensor(down, 0.0, math.nan)  # needs no heading
+    assert isinstance(reading, HeightReading) and reading.height_m == pytest.approx(5.23)
+    up = _wire(M.MAVLink_distance_sensor_message(500, 20, 4000, 523, 0, 19, M.MAV_SENSOR_ROTATION_PITCH_90, 0))
+    assert translate_sensor(up, 0.0, 0.0) is None
+
+
+def test_feed_queues_readings_counts_scans_and_says_when_streaming():
+    now = [100.0]
+    feed = SensorFeed(keep=2, clock=lambda: now[0])
+    assert not feed.streaming
+    assert not feed.handle(_wire(M.MAVLink_heartbeat_message(2, 12, 0, 0, 0, 3)), now[0], 0.0)
+    for _ in range(3):
+        assert feed.handle(_obstacle_distance([1000] * 72), now[0], 0.0)
+    assert feed.streaming and feed.scans == 3 and feed.dropped == 1
+    assert len(feed.drain()) == 2 and feed.drain() == []
+    now[0] += 2.5
+    assert not feed.streaming
+    assert not feed.wait(0.01)

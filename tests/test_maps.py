@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skyroute import maps, sfmap
+from skyroute import maps
 from skyroute.maps import MapFormatError, parse_colliders, read_colliders, read_home
+from tests import shared
 
 HOME = "lat0 37.792480, lon0 -122.397450\n"
 HEADER = "posX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
@@ -151,8 +152,8 @@ def test_an_oversized_file_is_refused_before_it_is_read(tmp_path, monkeypatch):
         read_colliders(write_map(tmp_path, HOME + HEADER + BOX * 20))
 
 
-@pytest.mark.skipif(sfmap.local_copy() is None, reason="no local copy of the SF map")
+@shared.needs_sf_map
 def test_reads_the_sf_map_unchanged():
-    city = read_colliders(sfmap.local_copy())
+    city = read_colliders(shared.sf_map())
     assert city.obstacles.shape == (3845, 6)
     assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)

@@ -12,13 +12,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from motion_planning import DEFAULT_MAP, EXIT_BAD_INPUT, EXIT_NO_PATH, main
+from motion_planning import DEFAULT_MAP, main
 from planning_utils import create_grid, line_of_sight, read_colliders
-from skyroute import sfmap
 from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
+from tests import geodesy, shared
 
 ROOT = Path(__file__).resolve().parents[1]
 HOME = Geodetic(37.792480, -122.397450, 0.0)
+# The exit codes README.md documents, written here (not imported from the code): changing one in the code, or in
+# the README, fails a test.
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_NO_PATH, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
 
 def latlon(north_m: float, east_m: float) -> list[str]:
@@ -206,7 +209,7 @@ def test_goal_beside_a_low_building_is_refused_because_the_descent_passes_it(tmp
 
 def test_plot_into_a_missing_directory_is_refused_before_planning(walled_map, tmp_path, capsys):
     target = tmp_path / "missing" / "plan.png"
-    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--plot", str(target)]) == 2
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--plot", str(target)]) == EXIT_BAD_INPUT
     captured = capsys.readouterr()
     assert "is not a directory" in captured.err and captured.out == ""
 
@@ -224,11 +227,10 @@ def test_an_installed_script_without_a_map_beside_it_uses_the_working_directory(
 # The SF map, bad map files and options, progress lines
 
 
-SF_MAP = sfmap.local_copy()
-needs_sf = pytest.mark.skipif(SF_MAP is None, reason="no local copy of the SF map (python -m skyroute.sfmap)")
+SF_MAP = shared.sf_map()
 
 
-@needs_sf
+@shared.needs_sf_map
 def test_the_goal_a_square_margin_shut_in_a_pocket_plans_on_the_sf_map(capsys):
     # Issue 10's case: with square-grown buildings this goal sat in a pocket (exit 3); an independent 0.5 m
     # raster connects it with more than 6.5 m of clearance.
@@ -321,3 +323,82 @@ def test_a_plan_only_grid_run_loads_no_graph_or_plotting_library():
             "print(sorted(m for m in ('scipy', 'skimage', 'networkx', 'matplotlib', 'pymavlink') if m in sys.modules))")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
     assert result.stdout.strip().splitlines()[-1] == "[]"
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# What README.md promises: the exit codes and the --json document
+
+
+def test_readme_documents_the_exit_codes_these_tests_check():
+    text = " ".join((ROOT / "README.md").read_text().split())
+    assert f"Exit codes: {EXIT_OK} success; {EXIT_FAILED} the mission started but did not complete" in text
+    assert f"; {EXIT_BAD_INPUT} bad input or a refusal before takeoff" in text
+    assert f"; {EXIT_NO_PATH} no path" in text and f"; {EXIT_INTERRUPTED} interrupted by Ctrl-C or SIGTERM" in text
+
+
+# Seattle, far from the default map's home: a document that reported the default home, or the SF one, fails.
+SEATTLE = (47.620500, -122.349300)
+
+
+def test_json_documents_home_map_altitude_and_safety_as_given(tmp_path, capsys):
+    path = tmp_path / "seattle.csv"
+    path.write_text(f"lat0 {SEATTLE[0]:.6f}, lon0 {SEATTLE[1]:.6f}\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+                    "20,0,10,1,30,10\n-40,-40,1,1,1,1\n40,40,1,1,1,1\n")
+    first_line = path.read_text().splitlines()[0]
+    home_lat, home_lon = (float(field.split()[1]) for field in first_line.split(","))
+    start = geodesy.ned_to_latlon(-30.3, 25.3, home_lat, home_lon)
+    goal = geodesy.ned_to_latlon(35.3, 0.3, home_lat, home_lon)
+    code = main(["--plan-only", "--json", "--map", str(path), "--alt", "7.5", "--safety", "2.5",
+                 "--start_lat", f"{start[0]:.9f}", "--start_lon", f"{start[1]:.9f}",
+                 "--goal_lat", f"{goal[0]:.9f}", "--goal_lon", f"{goal[1]:.9f}"])
+    assert code == EXIT_OK, capsys.readouterr().err
+    doc = json.loads(capsys.readouterr().out)
+    assert {"waypoints", "stats", "home", "start", "goal", "map", "altitude_m", "safety_m"} <= doc.keys()
+    assert doc["home"] == {"lat_deg": home_lat, "lon_deg": home_lon}
+    assert doc["map"] == str(path)
+    assert doc["altitude_m"] == 7.5 and doc["safety_m"] == 2.5
+    for name, (lat, lon), (north_m, east_m) in (("start", start, (-30.3, 25.3)), ("goal", goal, (35.3, 0.3))):
+        assert (doc[name]["lat_deg"], doc[name]["lon_deg"]) == pytest.approx((lat, lon), abs=1e-8)
+        assert (doc[name]["north_m"], doc[name]["east_m"]) == pytest.approx((north_m, east_m), abs=0.01)
+    waypoints = np.array(doc["waypoints"])
+    assert (waypoints[:, 2] == 7.5).all()  # flown at the altitude given
+    assert waypoints[0, :2] == pytest.approx([-30.5, 25.5]) and waypoints[-1, :2] == pytest.approx([35.5, 0.5])
+
+
+# A child running the real command line, with planning replaced by a step that signals the process and waits, so
+# the signal arrives while "planning" (deterministically; no race against a real planner's speed).
+_INTERRUPTED_CHILD = """
+import os, signal, sys, time
+import skyroute.cli.main as cli
+
+def planning_interrupted(*args, **kwargs):
+    os.kill(os.getpid(), signal.{signal})
+    time.sleep(60)
+    raise SystemExit("the signal did not interrupt planning")
+
+cli.make_plan = planning_interrupted
+sys.exit(cli.main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"])
+def test_a_signal_while_planning_exits_130_with_one_line(walled_map, signal_name):
+    result = subprocess.run(
+        [sys.executable, "-c", _INTERRUPTED_CHILD.format(signal=signal_name), "--plan-only", "-q", "--map",
+         str(walled_map), "--safety", "2", *latlon(35.3, 0.3)],
+        capture_output=True, text=True, cwd=ROOT, timeout=120,
+    )
+    assert result.returncode == EXIT_INTERRUPTED, result.stderr
+    assert result.stderr.strip() == "interrupted" and result.stdout == ""
+
+
+def test_a_reader_that_leaves_early_gets_exit_1_and_no_traceback(walled_map):
+    # `... --json | head -c 0`: the pipe's reading end is closed before the plan is written.
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "motion_planning.py"), "--plan-only", "--json", "-q", "--map", str(walled_map),
+         "--safety", "2", *latlon(35.3, 0.3)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    proc.stdout.close()
+    err = proc.stderr.read()
+    assert proc.wait(timeout=120) == EXIT_FAILED and err == ""

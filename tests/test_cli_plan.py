@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from motion_planning import DEFAULT_MAP, main
-from planning_utils import create_grid, line_of_sight, read_colliders
+from planning_utils import read_colliders
 from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
-from tests import geodesy, shared
+from tests import clearance, geodesy, shared
 
 ROOT = Path(__file__).resolve().parents[1]
 HOME = Geodetic(37.792480, -122.397450, 0.0)
@@ -49,9 +49,7 @@ def test_json_plan_goes_round_the_wall_and_every_leg_is_free(walled_map, capsys)
     assert np.allclose(waypoints[0, :2], (0.5, 0.5)) and np.allclose(waypoints[-1, :2], (35.5, 0.5), atol=0.01)
     assert (waypoints[:, 2] == 5).all()
     assert np.abs(waypoints[:, 1]).max() >= 32  # round an end of the wall (30 m + 2 m margin)
-    grid, n0, e0 = create_grid(read_colliders(walled_map).obstacles, 5, 2)
-    cells = np.floor(waypoints[:, :2] - (n0, e0)).astype(int)
-    assert all(line_of_sight(grid, a, b) for a, b in zip(cells[:-1], cells[1:]))
+    assert clearance.legs_too_close(waypoints, read_colliders(walled_map).obstacles, 2) == []
     for k in range(1, len(waypoints)):  # headings point along the arriving leg
         leg = waypoints[k, :2] - waypoints[k - 1, :2]
         assert math.isclose(waypoints[k, 3], math.atan2(leg[1], leg[0]), abs_tol=1e-3)

@@ -375,6 +375,9 @@ def planning_interrupted(*args, **kwargs):
     raise SystemExit("the signal did not interrupt planning")
 
 cli.make_plan = planning_interrupted
+# Python turns SIGINT into KeyboardInterrupt unless it started with SIGINT ignored (a background job, some test
+# runners): make it do so here as in a terminal.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 sys.exit(cli.main(sys.argv[1:]))
 """
 

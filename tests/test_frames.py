@@ -60,3 +60,11 @@ def test_classic_wrappers_take_longitude_first():
     assert local[2] == pytest.approx(-5.0, abs=1e-3)
     lon, lat, alt = local_to_global(local, (HOME.lon_deg, HOME.lat_deg, 0.0))
     assert (lon, lat, alt) == pytest.approx((HOME.lon_deg, HOME.lat_deg + 0.001, 5.0), abs=1e-9)
+
+
+def test_classic_wrappers_measure_altitude_from_the_homes_altitude():
+    # A home 10 m up: a point at 15 m is 5 m above it (down -5), and back again.
+    home = (HOME.lon_deg, HOME.lat_deg, 10.0)
+    local = global_to_local((HOME.lon_deg, HOME.lat_deg, 15.0), home)
+    assert local == pytest.approx([0.0, 0.0, -5.0], abs=1e-6)
+    assert local_to_global([0.0, 0.0, -5.0], home) == pytest.approx([HOME.lon_deg, HOME.lat_deg, 15.0], abs=1e-6)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -403,3 +404,162 @@ def test_a_reader_that_leaves_early_gets_exit_1_and_no_traceback(walled_map):
     proc.stdout.close()
     err = proc.stderr.read()
     assert proc.wait(timeout=120) == EXIT_FAILED and err == ""
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Options: README's defaults, the ranges refused, the parts of the map a goal may be in
+
+
+def readme_option_defaults() -> dict[str, object]:
+    """README's options table as ``{option: default}``, the default read from the table's words: a number, a
+    quoted word, ``off`` (a flag not given), ``none``; options sharing a row share its comma-separated defaults."""
+    defaults = {}
+    for line in (ROOT / "README.md").read_text().splitlines():
+        cells = [cell.strip() for cell in line.split("|")[1:-1]]
+        if len(cells) != 3 or not cells[0].startswith("`-"):
+            continue
+        names = [name.strip("`").split()[0] for name in cells[0].split(", ")]
+        names = [name for name in names if name.startswith("--")]
+        words = [word.strip("`") for word in cells[1].split(", ")] if len(names) > 1 else [cells[1].strip("`")]
+        for name, word in zip(names, words):
+            if word.startswith("off"):
+                defaults[name] = None if name == "--view" else False
+            elif word == "none":
+                defaults[name] = None
+            elif word.replace(".", "", 1).isdigit():
+                defaults[name] = float(word) if "." in word and word.count(".") == 1 else word
+            elif " " not in word and ":" not in word and not word.startswith("("):
+                defaults[name] = word
+    return defaults
+
+
+def test_the_parsers_defaults_are_readmes_and_run_has_the_same():
+    import inspect
+
+    from skyroute.cli import main as cli
+
+    documented = readme_option_defaults()
+    assert {"--alt", "--safety", "--seed", "--samples", "--port", "--host", "--speedup", "--timeout",
+            "--arm-timeout", "--link-timeout", "--log-dir", "--planner", "--sim", "--json"} <= documented.keys()
+    parser = cli.build_parser()
+    parsed = vars(parser.parse_args([]))
+    dests = {opt: action.dest for action in parser._actions for opt in action.option_strings}
+    run_defaults = {name: p.default for name, p in inspect.signature(cli.run).parameters.items()}
+    for option, default in documented.items():
+        value = parsed[dests[option]]
+        if isinstance(default, float) or (isinstance(default, str) and default.isdigit()):
+            assert value == float(default), option
+        else:
+            assert value == default, option
+        if dests[option] in run_defaults:  # run(), the API under the command line, has the same defaults
+            assert run_defaults[dests[option]] == value, option
+
+
+@pytest.mark.parametrize("name, accepted, refused", [
+    ("goal_lat", [-90.0, 90.0], [-90.000001, 90.000001]),
+    ("start_lat", [-90.0, 90.0], [-90.000001, 90.000001]),
+    ("goal_lon", [-180.0, 180.0], [-180.000001, 180.000001]),
+    ("start_lon", [-180.0, 180.0], [-180.000001, 180.000001]),
+    ("alt", [1e-9, 10_000.0], [0.0, 10_000.000001]),
+    ("safety", [0.0, 1_000.0], [-1e-9, 1_000.000001]),
+    ("goal_alt", [0.0, 10_000.0], [-1e-9, 10_000.000001]),
+    ("speedup", [1e-9, 1_000.0], [0.0, 1_000.000001]),
+    ("timeout", [1e-9, 86_400.0], [0.0, 86_400.000001]),
+    ("arm_timeout", [1e-9, 86_400.0], [0.0, 86_400.000001]),
+    ("link_timeout", [1e-9, 86_400.0], [0.0, 86_400.000001]),
+    ("port", [1, 65_535], [0, 65_536]),
+    ("seed", [0, 2**32 - 1], [-1, 2**32]),
+    ("samples", [2, 1_000_000], [1, 1_000_001]),
+])
+def test_numbers_are_checked_at_both_ends_of_their_range(name, accepted, refused):
+    from skyroute.cli import main as cli
+
+    for value in accepted:
+        cli.check_numbers(**{name: value})
+    for value in refused:
+        with pytest.raises(cli.UserError, match=f"--{name.replace('_', '-') if 'timeout' in name else name} must"):
+            cli.check_numbers(**{name: value})
+
+
+def test_a_speedup_out_of_range_is_refused_before_any_work(walled_map, capsys):
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--speedup", "0"]) == EXIT_BAD_INPUT
+    assert "--speedup must be > 0" in capsys.readouterr().err
+
+
+def test_a_start_needs_both_coordinates(walled_map, capsys):
+    start = ned_to_geodetic(LocalNED(-30.3, 25.3, 0), HOME)
+    for given in (["--start_lat", str(start.lat_deg)], ["--start_lon", str(start.lon_deg)]):
+        assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), *given]) == EXIT_BAD_INPUT
+        assert "give both --start_lat and --start_lon, or neither" in capsys.readouterr().err
+
+
+def test_a_start_for_a_real_vehicle_is_refused_before_connecting(walled_map, tmp_path, capsys):
+    start = ned_to_geodetic(LocalNED(-30.3, 25.3, 0), HOME)
+    code = main(["--map", str(walled_map), *latlon(35.3, 0.3), "--start_lat", str(start.lat_deg), "--start_lon",
+                 str(start.lon_deg), "--log-dir", str(tmp_path / "logs"), "--port", "9"])
+    assert code == EXIT_BAD_INPUT
+    assert "--start_lat/--start_lon need --plan-only or --sim" in capsys.readouterr().err
+    assert not (tmp_path / "logs").exists()  # refused before any log was opened
+
+
+def test_a_goal_needs_both_coordinates(walled_map, capsys):
+    goal_lat, _ = latlon(35.3, 0.3)[1], None
+    assert main(["--plan-only", "--map", str(walled_map), "--goal_lat", goal_lat]) == EXIT_BAD_INPUT
+    assert "give the goal as --goal_lat DEG --goal_lon DEG" in capsys.readouterr().err
+
+
+# walled_map's grid: posts at N/E -41..-39 and 39..41 fix it to north and east -41..41 m, 82 x 82 cells.
+@pytest.mark.parametrize("north_m, east_m, on_map", [
+    (-40.5, 0.5, True), (40.5, 0.5, True), (0.5, -40.5, True), (0.5, 40.5, True),  # the edge rows and columns
+    (-41.5, 0.5, False), (41.5, 0.5, False), (0.5, -41.5, False), (0.5, 41.5, False),  # one cell beyond
+])
+def test_goals_on_the_maps_edge_cells_plan_and_one_cell_beyond_is_off_the_map(walled_map, capsys, north_m, east_m,
+                                                                             on_map):
+    code = main(["--plan-only", "--json", "--map", str(walled_map), "--safety", "0.5", *latlon(north_m, east_m)])
+    captured = capsys.readouterr()
+    if on_map:
+        assert code == EXIT_OK, captured.err
+        assert json.loads(captured.out)["waypoints"][-1][:2] == pytest.approx([north_m, east_m], abs=0.01)
+    else:
+        assert code == EXIT_BAD_INPUT
+        assert "is off the map, which spans N -41..41 m, E -41..41 m from home" in captured.err
+
+
+def test_a_goal_beside_a_bollard_lower_than_a_metre_is_refused(tmp_path, capsys):
+    # A 0.4 m bollard: the drone flies over it, but landing 0.3 m from it is inside the 0.5 m margin on the ground.
+    bollard = tmp_path / "bollard.csv"
+    bollard.write_text("lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+                       "10,0.5,0.2,0.5,0.5,0.2\n-40,-40,0.1,0.1,0.1,0.1\n40,40,0.1,0.1,0.1,0.1\n")
+    code = main(["--plan-only", "--map", str(bollard), "--alt", "5", "--safety", "0.5", *latlon(10.7, 1.2)])
+    assert code == EXIT_BAD_INPUT
+    assert "safety margin of a building lower than the flight altitude" in capsys.readouterr().err
+    assert main(["--plan-only", "--map", str(bollard), "--alt", "5", "--safety", "0.5", *latlon(10.5, 2.5)]) == 0
+
+
+def test_an_unreadable_map_names_the_operating_systems_reason(tmp_path, capsys):
+    missing = tmp_path / "nope.csv"
+    assert main(["--plan-only", "--map", str(missing), *latlon(1, 1)]) == EXIT_BAD_INPUT
+    assert capsys.readouterr().err.strip() == f"error: cannot read map file {missing}: No such file or directory"
+
+
+def _signal_the_process_while_planning(*args, **kwargs):
+    # What the SIGTERM handler main installed does when the signal comes, called directly (no real signal, so a
+    # main that installed none fails here instead of killing the test run).
+    handler = signal.getsignal(signal.SIGTERM)
+    assert callable(handler), "main installed no SIGTERM handler"
+    handler(signal.SIGTERM, None)
+    raise AssertionError("the handler did not interrupt planning")
+
+
+def test_sigterm_while_planning_in_process_exits_130_and_restores_the_handler(walled_map, capsys, monkeypatch):
+    from skyroute.cli import main as cli
+
+    before = signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(cli, "make_plan", _signal_the_process_while_planning)
+    try:
+        code = main(["--plan-only", "-q", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3)])
+    except BaseException as exc:  # noqa: BLE001 (a KeyboardInterrupt escaping main is the failure looked for)
+        pytest.fail(f"main let {exc!r} escape")
+    captured = capsys.readouterr()
+    assert code == EXIT_INTERRUPTED and captured.err.strip() == "interrupted" and captured.out == ""
+    assert signal.getsignal(signal.SIGTERM) is before

@@ -97,7 +97,7 @@ def test_a_problem_in_a_big_file_is_found_at_its_line(tmp_path):
     rows = [f"{10 * (k % 100)},{10 * (k // 100)},5,5,5,5" for k in range(20_000)]
     rows[15_000] = "1,2,3,4,-5,6"
     path = write_map(tmp_path, HOME + HEADER + "\n".join(rows) + "\n")
-    with pytest.raises(MapFormatError, match="negative half size") as info:
+    with pytest.raises(MapFormatError, match=re.escape("negative half size (4, -5, 6)")) as info:
         read_colliders(path)
     assert info.value.line == 15_003
 
@@ -133,8 +133,17 @@ def test_a_map_bigger_than_the_grids_hold_names_the_row_that_stretches_it(tmp_pa
     with pytest.raises(MapFormatError) as info:
         read_colliders(write_map(tmp_path, content))
     assert info.value.line == 6
-    assert "stretches the map to 20010 x 10010 m" in str(info.value) and "200 M cells" in str(info.value)
+    assert "stretches the map to 20010 x 10010 m, 200 M cells at 1 m;" in str(info.value)
+    assert str(info.value).endswith("the planner's grids hold at most 200 M cells")
     assert read_colliders(write_map(tmp_path, content), max_grid_cells=10**9).obstacles.shape == (4, 6)
+
+
+def test_the_grid_size_limit_is_inclusive():
+    # One 10 x 10 m box: 100 cells at 1 m.
+    content = (HOME + HEADER + "0,0,5,5,5,5\n").encode()
+    assert parse_colliders(content, max_grid_cells=100).obstacles.shape == (1, 6)
+    with pytest.raises(MapFormatError, match="10 x 10 m, 0 M cells at 1 m; the planner's grids hold at most 0 M"):
+        parse_colliders(content, max_grid_cells=99)
 
 
 def test_a_file_that_is_not_a_regular_file_is_refused_without_reading_it(tmp_path):
@@ -150,6 +159,10 @@ def test_an_oversized_file_is_refused_before_it_is_read(tmp_path, monkeypatch):
     monkeypatch.setattr(maps, "MAX_FILE_BYTES", 100)
     with pytest.raises(MapFormatError, match="at most 0 MiB"):
         read_colliders(write_map(tmp_path, HOME + HEADER + BOX * 20))
+    monkeypatch.setattr(maps, "MAX_FILE_BYTES", 2 * 2**20)
+    big = write_map(tmp_path, HOME + HEADER + BOX * (3 * 2**20 // len(BOX) + 1))  # just over 3 MiB
+    with pytest.raises(MapFormatError, match="the file is 3 MiB; .* of at most 2 MiB"):
+        read_colliders(big)
 
 
 @shared.needs_sf_map

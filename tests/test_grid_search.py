@@ -350,3 +350,16 @@ def test_word_scans_stop_where_a_cell_by_cell_scan_does(seed):
         down = bits.scan_down(tables, int(r), int(c), target if 0 <= target < c else -1)
         assert up == scan_reference(padded, r, c, 1, target if target > c else -1)
         assert down == scan_reference(padded, r, c, -1, target if 0 <= target < c else -1)
+
+
+def test_the_python_a_star_refuses_ends_off_the_grid_or_blocked_like_the_compiled_search():
+    grid = np.zeros((4, 9), dtype=bool)  # not square: rows and columns must not be swapped
+    grid[1:3, 3:6] = True
+    with pytest.raises(OutsideGridError) as off:
+        python_a_star(grid, lambda a, b: 0.0, (0, 0), (4, 0))  # one row beyond the last
+    assert (off.value.which, tuple(off.value.cell)) == ("goal", (4, 0)) and "grid is 4 x 9 cells" in str(off.value)
+    with pytest.raises(OutsideGridError):
+        python_a_star(grid, lambda a, b: 0.0, (0, 9), (0, 0))  # one column beyond the last
+    with pytest.raises(BlockedCellError) as blocked:
+        python_a_star(grid, lambda a, b: 0.0, (1, 4), (0, 0))
+    assert blocked.value.which == "start" and blocked.value.nearest_free in {(0, 4), (3, 4)}

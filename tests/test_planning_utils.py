@@ -192,6 +192,8 @@ def test_line_of_sight_blocked_by_a_corner_the_segment_only_grazes():
     assert not line_of_sight(grid, (0, 0), (2, 2))
     assert line_of_sight(grid, (0, 0), (0, 2))
     assert not line_of_sight(grid, (0, 0), (5, 0))  # off the grid
+    assert not line_of_sight(grid, (0, 2), (3, 2)) and not line_of_sight(grid, (0, 1), (0, 3))  # one cell beyond
+    assert not line_of_sight(grid, (0, 2), (-1, 2)) and not line_of_sight(grid, (0, 1), (0, -1))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -270,6 +272,11 @@ def test_grid_map_plans_between_map_points():
     assert np.abs(plan.waypoints[:, 1]).max() >= 32
     assert plan.length_m <= plan.cost_m + 1e-9
     assert plan.stats()["waypoints_after_pruning"] == len(plan.waypoints)
+    # The raw route: adjacent cell centres (steps of 1 or sqrt 2 m) from the start's cell to the goal's.
+    assert plan.raw_path_ne[0].tolist() == [-19.5, 0.5] and plan.raw_path_ne[-1].tolist() == [20.5, 0.5]
+    steps = np.hypot(*np.diff(plan.raw_path_ne, axis=0).T)
+    assert np.isin(np.round(steps, 9), [1.0, round(math.sqrt(2), 9)]).all()
+    assert steps.sum() == pytest.approx(plan.cost_m)
 
 
 def test_start_inside_the_margin_plans_from_the_nearest_free_cell():
@@ -279,6 +286,7 @@ def test_start_inside_the_margin_plans_from_the_nearest_free_cell():
     with pytest.raises(BlockedCellError):
         grid_map.plan(start, (20.0, 0.0))
     plan = grid_map.plan(start, (20.0, 0.0), snap_start=True)
+    assert plan.raw_path_ne[0].tolist() == [-2.5, 0.5] and plan.raw_path_ne[1].tolist() == [-3.5, 0.5]
     assert plan.waypoints[0, :2].tolist() == [-2.5, 0.5]  # the centre of the start's own cell
     assert plan.waypoints[1, :2].tolist() == [-3.5, 0.5]  # the nearest free cell's centre, then on as usual
 

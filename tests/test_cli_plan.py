@@ -563,3 +563,49 @@ def test_sigterm_while_planning_in_process_exits_130_and_restores_the_handler(wa
     captured = capsys.readouterr()
     assert code == EXIT_INTERRUPTED and captured.err.strip() == "interrupted" and captured.out == ""
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_the_text_output_lists_the_same_waypoints_as_the_json(walled_map, capsys):
+    args = ["--plan-only", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3)]
+    assert main(args) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert main([*args, "--json"]) == 0
+    waypoints = json.loads(capsys.readouterr().out)["waypoints"]
+    rows = [line.split() for line in lines[1:-1]]
+    assert [int(row[0]) for row in rows] == list(range(len(waypoints)))
+    assert np.allclose([[float(v) for v in row[1:]] for row in rows], waypoints, atol=0.006)
+
+
+def test_a_plan_only_start_inside_the_margin_is_refused_not_snapped(walled_map, capsys):
+    # Snapping a start out of the margin is for a vehicle already there (a flight); a planned start is a choice.
+    start = ned_to_geodetic(LocalNED(18.3, 0.3, 0), HOME)  # 0.7 m south of the wall, inside the 2 m margin
+    code = main(["--plan-only", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3),
+                 "--start_lat", str(start.lat_deg), "--start_lon", str(start.lon_deg)])
+    assert code == EXIT_BAD_INPUT
+    assert "start" in (err := capsys.readouterr().err) and "within the 2 m safety margin" in err
+
+
+def test_grid3d_lands_on_the_rooftop_goal_alt_names(walled_map, capsys):
+    # The wall's top is 20 m: a goal on it at 23 m (above the 2 m margin) is the last waypoint.
+    code = main(["--plan-only", "--json", "--map", str(walled_map), "--safety", "2", "--planner", "grid3d",
+                 "--goal_alt", "23", *latlon(20.3, 10.3)])
+    assert code == EXIT_OK, capsys.readouterr().err
+    last = json.loads(capsys.readouterr().out)["waypoints"][-1]
+    assert last[:3] == pytest.approx([20.5, 10.5, 23.0], abs=0.01)
+
+
+def test_the_prm_seed_chooses_the_roadmap(walled_map, capsys):
+    def waypoints(seed: str):
+        assert main(["--plan-only", "--json", "--map", str(walled_map), "--safety", "2", "--planner", "prm",
+                     "--samples", "300", "--seed", seed, *latlon(35.3, 0.3)]) == EXIT_OK
+        return json.loads(capsys.readouterr().out)["waypoints"]
+
+    assert waypoints("1") == waypoints("1") and waypoints("1") != waypoints("2")
+
+
+def test_a_goal_on_a_map_without_a_free_cell_says_so(tmp_path, capsys):
+    covered = tmp_path / "covered.csv"  # one 30 m tower over the whole map
+    covered.write_text("lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+                       "0,0,15,20,20,15\n")
+    assert main(["--plan-only", "--map", str(covered), *latlon(1, 1)]) == EXIT_BAD_INPUT
+    assert capsys.readouterr().err.strip().endswith("; no free point on the map")

@@ -17,12 +17,10 @@ from motion_planning import DEFAULT_MAP, main
 from planning_utils import read_colliders
 from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
 from tests import clearance, geodesy, shared
+from tests.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NO_PATH, EXIT_OK
 
 ROOT = Path(__file__).resolve().parents[1]
 HOME = Geodetic(37.792480, -122.397450, 0.0)
-# The exit codes README.md documents, written here (not imported from the code): changing one in the code, or in
-# the README, fails a test.
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_NO_PATH, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
 
 def latlon(north_m: float, east_m: float) -> list[str]:

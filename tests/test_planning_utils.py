@@ -381,3 +381,19 @@ def test_the_grid_cell_limit_is_inclusive_and_the_message_gives_the_size(monkeyp
     monkeypatch.setattr(cspace, "MAX_GRID_CELLS", 1_999_999)
     with pytest.raises(ValueError, match=r"^the obstacles span 2000 x 1000 m: 2 M cells at 1 m, more than the 2 M"):
         cspace.grid_extent(data)
+
+
+def test_line_of_sight_pruning_cuts_a_three_cell_corner_in_the_open():
+    from planning_utils import prune_line_of_sight
+
+    open_grid = np.zeros((5, 5), dtype=bool)
+    assert prune_line_of_sight(open_grid, np.array([[0, 0], [1, 1], [1, 2]])).tolist() == [[0, 0], [1, 2]]
+
+
+def test_inside_obstacle_is_the_footprint_at_the_flight_altitude():
+    # A 4 x 4 m box at north 20, east 10, 8 m tall; posts fix the map.
+    boxes = np.array([[20, 10, 4, 2, 2, 4], [-40, -40, 0.5, 0.5, 0.5, 0.5], [40, 40, 0.5, 0.5, 0.5, 0.5]])
+    grid_map = GridMap.build(boxes, altitude_m=5, safety_m=2)
+    assert grid_map.inside_obstacle(21.5, 11.5) and grid_map.inside_obstacle(18.5, 8.5)
+    assert not grid_map.inside_obstacle(20.0, -10.0) and not grid_map.inside_obstacle(23.0, 10.0)
+    assert not GridMap.build(boxes, altitude_m=9, safety_m=2).inside_obstacle(20.0, 10.0)  # over its 8 m top

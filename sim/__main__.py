@@ -1,25 +1,76 @@
-"""``python -m sim``: serve the mock autopilot over TCP until SIGINT/SIGTERM."""
+"""``python -m sim``: serve the mock autopilot over TCP until SIGINT/SIGTERM.
+
+Every bad option or map is one line on stderr and exit code 2; no traceback, no hang.
+"""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 import threading
 from pathlib import Path
 
+from .boot import PRESETS, parse_boot
 from .config import SimConfig, default_map_path
 from .faults import FaultConfig, command_id
+from .params import ARDUPILOT_PARAMS, PX4_PARAMS
 from .world import CityMap
 
 
-def _pair(text: str) -> tuple[float, float]:
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a bad option in one line (no usage block)."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message}\n")
+
+
+def _finite(text: str) -> float:
     try:
-        a, b = (float(v) for v in text.split(","))
+        value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected two comma-separated numbers, got {text!r}") from None
-    return a, b
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _ranged(low: float, high: float, *, low_open: bool = False):
+    def parse(text: str) -> float:
+        value = _finite(text)
+        if value < low or value > high or (low_open and value == low):
+            bracket = "(" if low_open else "["
+            raise argparse.ArgumentTypeError(f"must be in {bracket}{low:g}, {high:g}], got {text}")
+        return value
+    return parse
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _port(text: str) -> int:
+    value = _count(text)
+    if value > 65535:
+        raise argparse.ArgumentTypeError(f"must be in [0, 65535], got {text}")
+    return value
+
+
+def _numbers(count: tuple[int, ...], what: str):
+    def parse(text: str) -> tuple[float, ...]:
+        parts = text.split(",")
+        if len(parts) not in count:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return tuple(_finite(p) for p in parts)
+    return parse
 
 
 def _command(text: str) -> str:
@@ -30,12 +81,28 @@ def _command(text: str) -> str:
     return text
 
 
+def _boot(text: str) -> str:
+    try:
+        parse_boot(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _param(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    return name.strip(), _finite(value)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="python -m sim",
         description="Mock PX4/ArduCopter autopilot: flies a point-mass quadcopter through the colliders.csv "
         "city, speaks MAVLink 2 over TCP (system 1, component 1) and reports collisions. Prints one status "
-        "line per event; SIGINT/SIGTERM shut it down cleanly and write --report.",
+        "line per event; SIGINT/SIGTERM shut it down cleanly and write --report. Everything the autopilot "
+        "times (boot, streams, heartbeats, failsafe timeouts, link faults) runs in simulated time.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     g = p.add_argument_group("server")
@@ -43,41 +110,57 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"obstacle map (colliders.csv); None = the project's own, {default_map_path()}")
     g.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (loopback unless told otherwise)")
-    g.add_argument("--port", type=int, default=5760, help="TCP port (0 = pick a free one)")
-    g.add_argument("--speedup", type=float, default=1.0,
-                   help="simulated seconds per wall-clock second (heartbeats stay at 1 Hz wall clock)")
+    g.add_argument("--port", type=_port, default=5760, help="TCP port (0 = pick a free one)")
+    g.add_argument("--speedup", type=_ranged(0, 1000, low_open=True), default=1.0,
+                   help="simulated seconds per wall-clock second, in (0, 1000]")
     g.add_argument("--report", type=Path, default=None, help="write the JSON flight report here on exit")
     g.add_argument("--tlog", type=Path, default=None, help="write a MAVLink telemetry log (.tlog) here")
-    g.add_argument("--duration", type=float, default=None,
+    g.add_argument("--duration", type=_ranged(0, 1e7, low_open=True), default=None,
                    help="exit by itself after this many wall-clock seconds (None = run until signalled)")
+    g.add_argument("--signing-key", default=None, metavar="KEY",
+                   help="MAVLink 2 signing: 64 hex characters = the 32-byte secret key, any other text = its "
+                   "SHA-256 (as MAVProxy's 'signing setup'); the sim then signs what it sends and drops unsigned "
+                   "or wrongly signed frames (counted in the report)")
     g.add_argument("-q", "--quiet", action="store_true", help="no status lines")
     g = p.add_argument_group("vehicle")
     g.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
                    help="personality: PX4 custom modes, or ArduCopter mode numbers (GUIDED 4, LAND 9, RTL 6)")
     g.add_argument("--strict", action="store_true",
-                   help="PX4-like: NED z only, OFFBOARD needs a setpoint stream and holds after 0.5 s "
-                   "(wall clock) without one")
-    g.add_argument("--start", type=_pair, default=None, metavar="LAT,LON",
-                   help="boot position (deg); default: home = the map header's lat0,lon0 at altitude 0")
+                   help="PX4 as the real one: NED z only, arming in OFFBOARD needs a setpoint stream, and without "
+                   "setpoints for COM_OF_LOSS_T (1 s simulated) the COM_OBL_RC_ACT failsafe acts")
+    g.add_argument("--boot", type=_boot, default="fast", metavar="PRESET",
+                   help=f"boot timeline: {', '.join(PRESETS)} (measured on the real autopilots), or "
+                   "key=seconds pairs, e.g. gps_fix=1,origin=2,home=2,local_position=5,armable=5")
+    g.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
+                   help="set a parameter at boot (repeatable); px4: " + ", ".join(PX4_PARAMS)
+                   + "; ardupilot: " + ", ".join(ARDUPILOT_PARAMS))
+    g.add_argument("--scale-timeouts", action="store_true",
+                   help="multiply the link-loss timeouts (COM_OF_LOSS_T, COM_DL_LOSS_T, FS_GCS_TIMEOUT) by the "
+                   "speedup, as PX4's SITL startup does, for clients that pace their streams in wall-clock time")
+    g.add_argument("--start", type=_numbers((2, 3), "LAT,LON or LAT,LON,ALT"), default=None, metavar="LAT,LON[,ALT]",
+                   help="boot position (deg), on the surface at or below ALT (m above the map datum, default 0: "
+                   "the ground; a roof's height to start on it); must be on the map and not inside a building; "
+                   "default: the map's home")
     g.add_argument("--origin", choices=("home", "boot"), default="home",
-                   help="local NED origin: the home position, or where the vehicle booted "
-                   "(as the PX4/ArduPilot EKF origin)")
-    g.add_argument("--radius", type=float, default=0.3, help="vehicle sphere radius for collisions (m)")
-    g.add_argument("--wind", type=_pair, default=(0.0, 0.0), metavar="N,E",
+                   help="local NED origin: the current home position (it moves at arming), or where the vehicle "
+                   "booted (the EKF origin, as on the real autopilots)")
+    g.add_argument("--radius", type=_ranged(0, 100), default=0.3, help="vehicle sphere radius for collisions (m)")
+    g.add_argument("--wind", type=_numbers((2,), "N,E"), default=(0.0, 0.0), metavar="N,E",
                    help="mean wind velocity north,east (m/s, direction the air moves towards)")
-    g.add_argument("--gust", type=float, default=0.0, help="wind gust standard deviation (m/s)")
-    g.add_argument("--gps-noise", type=float, default=0.0,
+    g.add_argument("--gust", type=_ranged(0, 100), default=0.0, help="wind gust standard deviation (m/s)")
+    g.add_argument("--gps-noise", type=_ranged(0, 1000), default=0.0,
                    help="reported-position noise standard deviation (m); collisions use the truth")
     g.add_argument("--seed", type=int, default=0, help="seed for wind, GPS noise and packet loss")
-    g.add_argument("--physics-dt", type=float, default=0.02, help="fixed physics step (simulated s)")
-    g = p.add_argument_group("faults (all off by default; link faults are per client and wall-clock)")
-    g.add_argument("--packet-loss", type=float, default=0.0, metavar="PCT",
+    g.add_argument("--physics-dt", type=_ranged(0, 0.1, low_open=True), default=0.02,
+                   help="fixed physics step (simulated s)")
+    g = p.add_argument_group("faults (all off by default; link faults are per client and in simulated time)")
+    g.add_argument("--packet-loss", type=_ranged(0, 100), default=0.0, metavar="PCT",
                    help="drop this percentage of packets in each direction")
-    g.add_argument("--latency", type=float, default=0.0, metavar="MS",
-                   help="delay every packet by this many milliseconds in each direction")
-    g.add_argument("--outage", type=_pair, default=None, metavar="T,D",
-                   help="drop all packets from T to T+D wall-clock seconds after start (socket stays open)")
-    g.add_argument("--deny-arm", type=int, default=0, metavar="N",
+    g.add_argument("--latency", type=_ranged(0, 60000), default=0.0, metavar="MS",
+                   help="delay every packet by this many simulated milliseconds in each direction")
+    g.add_argument("--outage", type=_numbers((2,), "T,D"), default=None, metavar="T,D",
+                   help="drop all packets from T to T+D simulated seconds after start (socket stays open)")
+    g.add_argument("--deny-arm", type=_count, default=0, metavar="N",
                    help="answer the first N arm requests TEMPORARILY_REJECTED")
     g.add_argument("--deny-command", type=_command, action="append", default=[], metavar="NAME",
                    help="answer this MAV_CMD DENIED, e.g. NAV_TAKEOFF or MAV_CMD_NAV_LAND or 22 (repeatable)")
@@ -85,6 +168,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> SimConfig:
+    """The :class:`SimConfig` of parsed arguments.
+
+    Raises
+    ------
+    ValueError
+        For values out of range (one line, naming the option's meaning).
+    """
     faults = FaultConfig(
         packet_loss_pct=args.packet_loss,
         latency_ms=args.latency,
@@ -98,6 +188,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         report_path=args.report, tlog_path=args.tlog, autopilot=args.autopilot, strict=args.strict,
         origin=args.origin, radius_m=args.radius, wind_m_s=args.wind, gust_m_s=args.gust,
         gps_noise_m=args.gps_noise, seed=args.seed, physics_dt_s=args.physics_dt, faults=faults,
+        boot=args.boot, params=dict(args.param), signing_key=args.signing_key, scale_timeouts=args.scale_timeouts,
     )
 
 
@@ -118,8 +209,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         city = CityMap.from_csv(map_path)
-    except (OSError, ValueError) as exc:  # MapFormatError, a row numpy cannot parse, a binary file
-        print(f"error: cannot read map {map_path}: {exc}", file=sys.stderr)
+    except ValueError as exc:  # MapFormatError: "<file>:<line>: <why>"
+        print(f"error: map {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"error: cannot read map {map_path}: {exc.strerror or exc}", file=sys.stderr)
         return 2
 
     def show(line: str) -> None:
@@ -132,12 +226,17 @@ def main(argv: list[str] | None = None) -> int:
         show(f"received {signal.Signals(signum).name}, shutting down")
         stop.set()
 
+    try:
+        sim = Simulator(config, on_event=show, city=city)
+    except ValueError as exc:  # a start off the map or inside a building
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         try:
-            sim = Simulator(config, on_event=show, city=city).start()
+            sim.start()
         except OSError as exc:
-            print(f"error: cannot listen on {config.host}:{config.port}: {exc}", file=sys.stderr)
+            print(f"error: cannot listen on {config.host}:{config.port}: {exc.strerror or exc}", file=sys.stderr)
             return 1
         try:
             stop.wait(args.duration)
@@ -147,7 +246,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: simulation failed: {sim.error!r}", file=sys.stderr)
             return 1
         collided = len(report["collisions"])
-        show(f"done: {report['sim_time_s']:.1f} s simulated, {collided} collision(s)")
+        rejected = report["signing"]["rejected_frames"]
+        extra = f", {rejected} frame(s) dropped for their signature" if report["signing"]["enabled"] else ""
+        show(f"done: {report['sim_time_s']:.1f} s simulated, {collided} collision(s){extra}")
         return 0
     finally:
         for s, handler in old.items():

@@ -1,7 +1,8 @@
-"""The autopilot: modes, commands, setpoints, flight tasks and the physics step.
+"""The autopilot: boot, modes, setpoints, flight tasks and the physics step.
 
 Owned by the simulation thread; nothing here is thread-safe on its own (the :class:`Simulator`
-holds a lock around every call).
+holds a lock around every call). Commands are :mod:`sim.commands`, arming and the land detector
+:mod:`sim.arming`, link-loss failsafes :mod:`sim.failsafes`.
 
 Dialects (see ``sim/__init__.py`` for the full story): a link is marked *classic* (the udacidrone
 ``PX4=False`` API) when, outside ``--strict``, it sends a SET_POSITION_TARGET_LOCAL_NED whose
@@ -21,21 +22,29 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from . import telemetry as tm
+from .arming import GroundLogic, arm_refusal, readiness_reason
+from .boot import resolve_boot
 from .commands import CommandHandlers, LinkState
-from .config import SimConfig
+from .config import START_MARGIN_M, SimConfig
 from .dynamics import ControlTarget, Limits, PointMassQuad
+from .failsafes import Failsafes
 from .faults import CommandFaults
 from .modes import ArduCopter, Behaviour, Mode, Task, make_personality
+from .params import ParamTable
 from .report import Collision, FlightRecorder
 from .setpoints import global_int_target, local_ned_target
+from .streams import StreamScheduler
+from .tasks import TaskControl
 from .world import CityMap
 
 log = logging.getLogger(__name__)
 M = mavlink
 NAN = math.nan
+#: PX4 modes that prevent arming: the mode PX4 returns to after a disarm is never one of them.
+_PX4_PREVENTS_ARMING = {"LAND", "RTL"}
 
 
-class Autopilot(CommandHandlers):
+class Autopilot(CommandHandlers, TaskControl):
     """Mock PX4/ArduCopter flight stack around a :class:`PointMassQuad`.
 
     Parameters
@@ -47,6 +56,11 @@ class Autopilot(CommandHandlers):
         ``send(link, msg)`` queues a message on one link; ``send(None, msg)`` broadcasts.
     emit : callable
         ``emit(kind, text)`` reports a status event.
+
+    Raises
+    ------
+    ValueError
+        If ``config.start`` is off the map or inside a building.
     """
 
     def __init__(self, config: SimConfig, city: CityMap, recorder: FlightRecorder,
@@ -58,54 +72,40 @@ class Autopilot(CommandHandlers):
         self.emit = emit
         self.personality = make_personality(config.autopilot)
         self.is_px4 = not isinstance(self.personality, ArduCopter)
-        table = tm.PX4_PARAMS if self.is_px4 else tm.ARDUPILOT_PARAMS
-        self.param_types = {k: v[1] for k, v in table.items()}
-        self.params = {k: v[0] for k, v in table.items()}
+        self.params = ParamTable(config.autopilot, config.params, config.speedup, config.scale_timeouts)
+        self.boot = resolve_boot(config.boot)
         self.command_faults = CommandFaults(config.faults)
+        self.scheduler = StreamScheduler(config.autopilot, config.speedup, config.physics_dt_s)
         self.rng = random.Random(config.seed)
         self.sim_time_s = 0.0
-        self.wall_s = 0.0
-        self.home_neu = np.zeros(3)
-        if config.start is not None:
-            n, e, _ = city.geodetic_to_map(config.start[0], config.start[1], 0.0)
-        else:
-            n, e = 0.0, 0.0
-        up = city.ground_up_m(n, e, math.inf, config.radius_m)
-        self.boot_neu = np.array([n, e, up])
+        self.boot_neu = city.boot_point(config.start, config.radius_m, START_MARGIN_M)
+        self.origin_set = False
+        self.home_neu: np.ndarray | None = None
         self.quad = PointMassQuad(Limits(), self.boot_neu)
-        self._apply_params()
         self.armed = False
         self.crashed = False
         self.mode: Mode = self.personality.boot_mode
+        self._apply_params()
+        self.mode_after_disarm: Mode = self.mode  # PX4: the last user mode that does not prevent arming
         self.task = Task(Behaviour.HOLD, self.boot_neu.copy())
         self.setpoint: ControlTarget | None = None
-        self.setpoint_wall_s = -math.inf
+        self.setpoint_s = -math.inf  # simulated time the last setpoint arrived
         self.following = False
-        self.touchdown_s: float | None = None
         self.speed_limit_m_s = NAN
         self.gps_noise = np.zeros(3)
         self.gust = np.zeros(3)
-        self._commands = {
-            M.MAV_CMD_COMPONENT_ARM_DISARM: self._cmd_arm,
-            M.MAV_CMD_DO_SET_MODE: self._cmd_set_mode,
-            M.MAV_CMD_NAV_TAKEOFF: self._cmd_takeoff,
-            M.MAV_CMD_NAV_LAND: self._cmd_land,
-            M.MAV_CMD_NAV_RETURN_TO_LAUNCH: self._cmd_rtl,
-            M.MAV_CMD_DO_SET_HOME: self._cmd_set_home,
-            M.MAV_CMD_DO_REPOSITION: self._cmd_reposition,
-            M.MAV_CMD_DO_CHANGE_SPEED: self._cmd_change_speed,
-            M.MAV_CMD_SET_MESSAGE_INTERVAL: self._cmd_message_interval,
-            M.MAV_CMD_REQUEST_MESSAGE: self._cmd_request_message,
-            M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: self._cmd_capabilities,
-            M.MAV_CMD_GET_HOME_POSITION: self._cmd_get_home,
-        }
+        self.ground = GroundLogic(self)
+        self.failsafes = Failsafes(self)
+        self._commands = self.command_table()
         self._after_ack: list[tuple[object, object]] = []
 
     # ------------------------------------------------------------------ frames and state
     @property
     def origin_neu(self) -> np.ndarray:
-        """Local NED origin in the map frame."""
-        return self.home_neu if self.cfg.origin == "home" else self.boot_neu
+        """Local NED origin in the map frame (see ``SimConfig.origin``)."""
+        if self.cfg.origin == "home" and self.home_neu is not None:
+            return self.home_neu
+        return self.boot_neu
 
     @property
     def position_neu(self) -> np.ndarray:
@@ -115,41 +115,57 @@ class Autopilot(CommandHandlers):
     def airborne(self) -> bool:
         return not self.quad.state.on_ground
 
-    def param(self, name: str) -> float:
-        return self.params[name]
+    def setpoint_fresh(self) -> bool:
+        """A setpoint arrived within COM_OF_LOSS_T (PX4's offboard signal, simulated time; 1 s for ArduPilot)."""
+        timeout = self.params["COM_OF_LOSS_T"] if "COM_OF_LOSS_T" in self.params else 1.0
+        return self.sim_time_s - self.setpoint_s <= timeout + 1e-9
 
     def _apply_params(self) -> None:
-        lim = self.quad.limits
+        lim, p = self.quad.limits, self.params
         if self.is_px4:
-            lim.max_horizontal_speed_m_s = self.params["MPC_XY_VEL_MAX"]
-            lim.max_climb_m_s = self.params["MPC_Z_VEL_MAX_UP"]
-            lim.max_descent_m_s = self.params["MPC_Z_VEL_MAX_DN"]
+            lim.max_horizontal_speed_m_s = p["MPC_XY_VEL_MAX"]
+            lim.max_horizontal_accel_m_s2 = p["MPC_ACC_HOR_MAX" if self.mode.behaviour == Behaviour.OFFBOARD
+                                              else "MPC_ACC_HOR"]
+            lim.max_climb_m_s = p["MPC_Z_VEL_MAX_UP"]
+            lim.max_descent_m_s = p["MPC_Z_VEL_MAX_DN"]
         else:
-            lim.max_horizontal_speed_m_s = self.params["WPNAV_SPEED"] / 100.0
-            lim.max_climb_m_s = self.params["WPNAV_SPEED_UP"] / 100.0
-            lim.max_descent_m_s = self.params["WPNAV_SPEED_DN"] / 100.0
+            lim.max_horizontal_speed_m_s = p["WPNAV_SPEED"] / 100.0
+            lim.max_horizontal_accel_m_s2 = p["WPNAV_ACCEL"] / 100.0
+            lim.max_climb_m_s = p["WPNAV_SPEED_UP"] / 100.0
+            lim.max_descent_m_s = p["WPNAV_SPEED_DN"] / 100.0
+        for attr in ("max_horizontal_speed_m_s", "max_horizontal_accel_m_s2", "max_climb_m_s", "max_descent_m_s"):
+            setattr(lim, attr, max(0.05, getattr(lim, attr)))
 
     def _land_speed(self) -> float:
-        return self.params["MPC_LAND_SPEED"] if self.is_px4 else self.params["LAND_SPEED"] / 100.0
+        return max(0.05, self.params["MPC_LAND_SPEED"] if self.is_px4 else self.params["LAND_SPEED"] / 100.0)
 
     def _ground_fn(self, north_m: float, east_m: float, below_up_m: float) -> float:
         return self.city.ground_up_m(north_m, east_m, below_up_m, self.cfg.radius_m)
 
     def landed_state(self) -> int:
-        if not self.airborne:
+        """EXTENDED_SYS_STATE landed state, as the land detector sees it."""
+        kind = self.task.kind
+        landing = kind == Behaviour.LAND or (kind == Behaviour.RTL and self.task.phase == 2)
+        if self.ground.landed:
             return M.MAV_LANDED_STATE_ON_GROUND
-        if self.task.kind == Behaviour.TAKEOFF:
-            return M.MAV_LANDED_STATE_TAKEOFF
-        if self.task.kind == Behaviour.LAND or (self.task.kind == Behaviour.RTL and self.task.phase == 2):
+        if landing:
             return M.MAV_LANDED_STATE_LANDING
+        if kind == Behaviour.TAKEOFF and self.airborne:
+            return M.MAV_LANDED_STATE_TAKEOFF
         return M.MAV_LANDED_STATE_IN_AIR
 
     def statustext(self, severity: int, text: str, link=None) -> None:
         for msg in tm.statustext(severity, text):
             self.send(link, msg)
 
+    def delivers(self, link, msg) -> bool:
+        """Whether ``msg`` goes out on ``link``: PX4 sends STATUSTEXT only to a link it has had a ground station's
+        HEARTBEAT on (measured: no text at all for a client without one, or with an onboard-controller one)."""
+        return not (self.is_px4 and msg.get_type() == "STATUSTEXT" and not getattr(link, "gcs_seen", True))
+
     # ------------------------------------------------------------------ modes and tasks
-    def _enter_mode(self, mode: Mode, task: Task | None = None) -> None:
+    def enter_mode(self, mode: Mode, task: Task | None = None, user: bool = True) -> None:
+        """Switch to ``mode`` (with ``task``, else the mode's default task); ``user``: the user's own choice."""
         pos = self.position_neu.copy()
         if task is None:
             b = mode.behaviour
@@ -160,9 +176,12 @@ class Autopilot(CommandHandlers):
             else:
                 task = Task(b, pos)
         if mode.behaviour == Behaviour.OFFBOARD:
-            self.following = self.wall_s - self.setpoint_wall_s <= self.param_offboard_timeout()
+            self.following = self.setpoint_fresh() if self.is_px4 else False
         changed = mode != self.mode
         self.mode, self.task = mode, task
+        self._apply_params()  # PX4's acceleration limit depends on the mode
+        if user and mode.name not in _PX4_PREVENTS_ARMING:
+            self.mode_after_disarm = mode
         if changed:
             self.emit("mode", f"mode {mode.name}")
 
@@ -171,13 +190,72 @@ class Autopilot(CommandHandlers):
             return self.params["MIS_TAKEOFF_ALT"]
         return max(1.0, self.params["PILOT_TKOFF_ALT"] / 100.0)
 
-    def param_offboard_timeout(self) -> float:
-        return self.params.get("COM_OF_LOSS_T", 0.5)
+    def set_armed(self, armed: bool, why: str = "") -> None:
+        self.armed = armed
+        if armed:
+            self.ground.on_arm()
+            if self.task.kind in (Behaviour.HOLD, Behaviour.OFFBOARD):
+                self.task.position_neu = self.position_neu.copy()
+            self._reset_home_at_arming()
+        text = ("ARMED" if armed else "DISARMED") + (f" ({why})" if why else "")
+        self.emit("armed" if armed else "disarmed", text)
+        if not armed and self.is_px4 and self.mode != self.mode_after_disarm:
+            self.enter_mode(self.mode_after_disarm)
 
-    def _hold(self, reason: str = "") -> None:
-        self._enter_mode(self.personality.mode_for(Behaviour.HOLD))
-        if reason:
-            self.statustext(M.MAV_SEVERITY_WARNING, reason)
+    def disarm(self, why: str, text: str) -> None:
+        """Disarm on the vehicle's own decision (auto-disarm), announcing ``text``."""
+        self.statustext(M.MAV_SEVERITY_INFO, text)
+        self.set_armed(False, why)
+
+    def cut_motors(self, why: str) -> None:
+        """Terminate / disarm: on the ground a disarm, in the air a fall."""
+        if self.airborne:
+            self._crash(None, why)
+        elif self.armed:
+            self.set_armed(False, why)
+
+    def _reset_home_at_arming(self) -> None:
+        """Both autopilots move home to where they arm (the EKF origin stays)."""
+        self.set_home(self.position_neu.copy(), "arming")
+
+    def set_home(self, home_neu: np.ndarray, why: str) -> None:
+        self.home_neu = np.array(home_neu, dtype=float)
+        self.recorder.home = self.recorder.place(*self.home_neu)
+        lat, lon, alt = self.city.map_to_geodetic(*self.home_neu)
+        self.emit("home", f"home set to {lat:.7f},{lon:.7f},{alt:.2f} ({why})")
+        snap = self.snapshot()
+        self._broadcast_later(tm.home_position(snap))
+        if not self.is_px4 and self.origin_set:
+            self._broadcast_later(tm.gps_global_origin(snap))
+
+    def _broadcast_later(self, msg) -> None:
+        """Send after the current command's ack (or now, outside a command)."""
+        if self._in_command:
+            self._after_ack.append((None, msg))
+        else:
+            self.send(None, msg)
+
+    _in_command = False
+
+    # ------------------------------------------------------------------ boot
+    def _boot_events(self) -> None:
+        t, b = self.sim_time_s, self.boot
+        if not self.origin_set and t >= b.origin_s:
+            self.origin_set = True
+            lat, lon, alt = self.city.map_to_geodetic(*self.boot_neu)
+            self.emit("boot", f"EKF origin set at {lat:.7f},{lon:.7f},{alt:.2f}")
+            if not self.is_px4:
+                self.statustext(M.MAV_SEVERITY_INFO, "EKF3 IMU0 origin set")
+            self.send(None, tm.gps_global_origin(self.snapshot()))
+        if self.home_neu is None and t >= b.home_s:
+            self.set_home(self.boot_neu.copy(), "boot")
+        if not self._estimate_announced and t >= b.local_position_s:
+            self._estimate_announced = True
+            self.emit("boot", "position estimate ready")
+            if not self.is_px4:
+                self.statustext(M.MAV_SEVERITY_INFO, "EKF3 IMU0 is using GPS")
+
+    _estimate_announced = False
 
     # ------------------------------------------------------------------ message dispatch
     def handle(self, link: LinkState, msg) -> None:
@@ -193,7 +271,13 @@ class Autopilot(CommandHandlers):
             self._on_setpoint(link, msg, global_int_target)
         elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
             self._on_param(link, msg)
-        elif kind == "PING" and msg.target_system == 0:
+        elif kind == "REQUEST_DATA_STREAM":
+            self._on_request_data_stream(link, msg)
+        elif kind == "HEARTBEAT":
+            if msg.type == M.MAV_TYPE_GCS:
+                link.gcs_seen = True
+            self.failsafes.on_heartbeat(msg)
+        elif kind == "PING" and msg.target_system == 0 and self.is_px4:  # ArduPilot does not answer
             self.send(link, M.MAVLink_ping_message(msg.time_usec, msg.seq, msg.get_srcSystem(),
                                                   msg.get_srcComponent()))
         elif kind == "TIMESYNC" and msg.tc1 == 0:
@@ -208,7 +292,8 @@ class Autopilot(CommandHandlers):
         if target is None:
             return
         self.setpoint = target
-        self.setpoint_wall_s = self.wall_s
+        self.setpoint_s = self.sim_time_s
+        self.recorder.last_setpoint_sim_time_s = round(self.sim_time_s, 3)
         link.sent_setpoint = True
         if self.mode.behaviour == Behaviour.OFFBOARD:
             if self.task.kind != Behaviour.OFFBOARD:
@@ -218,69 +303,30 @@ class Autopilot(CommandHandlers):
     def _on_param(self, link: LinkState, msg) -> None:
         if msg.target_system not in (0, tm.SYSTEM_ID):
             return
-        names = list(self.params)
+        p = self.params
         kind = msg.get_type()
         if kind == "PARAM_REQUEST_LIST":
-            selected = names
+            for name in p.names:
+                self.send(link, p.value_message(name, named=False))
         elif kind == "PARAM_REQUEST_READ":
             if msg.param_index >= 0:
-                selected = names[msg.param_index : msg.param_index + 1]
-            else:
-                selected = [msg.param_id] if msg.param_id in self.params else []
+                if msg.param_index < len(p.names):
+                    self.send(link, p.value_message(p.names[msg.param_index], named=False))
+            elif msg.param_id in p:
+                self.send(link, p.value_message(msg.param_id, named=True))
         else:
-            if msg.param_id not in self.params:
-                self.statustext(M.MAV_SEVERITY_WARNING, f"unknown parameter {msg.param_id}", link)
-                return
-            value = float(msg.param_value)
-            if self.param_types[msg.param_id] != tm.REAL32:
-                value = float(int(round(value)))
-            self.params[msg.param_id] = value
+            value = p.decode_set(msg.param_id, msg.param_value)
+            if value is None:
+                return  # neither autopilot answers a set of an unknown name
+            p.set(msg.param_id, value)
             self._apply_params()
-            self.emit("param", f"{msg.param_id} = {value:g}")
-            selected = [msg.param_id]
-        for name in selected:
-            index = names.index(name)
-            out = tm.param_value(name, self.params[name], self.param_types[name], len(names), index)
-            self.send(None if kind == "PARAM_SET" else link, out)
+            self.emit("param", f"{msg.param_id} = {p[msg.param_id]:g}")
+            self.send(None, p.value_message(msg.param_id, named=True))
 
     # ------------------------------------------------------------------ physics step
-    def control_target(self) -> ControlTarget:
-        """Controller target for the current task (map frame)."""
-        task, pos = self.task, self.position_neu
-        speed = self.speed_limit_m_s
-        if task.kind == Behaviour.OFFBOARD:
-            if self.following and self.setpoint is not None and (self.is_px4 or self.airborne):
-                sp = self.setpoint
-                if math.isfinite(speed):
-                    sp = ControlTarget(sp.position_neu, sp.velocity_neu, sp.yaw_rad, sp.yaw_rate_rad_s, speed,
-                                       sp.max_descent_m_s)
-                return sp
-            return ControlTarget(tuple(task.position_neu), max_horizontal_speed_m_s=speed)
-        if task.kind in (Behaviour.HOLD, Behaviour.TAKEOFF):
-            return ControlTarget(tuple(task.position_neu), max_horizontal_speed_m_s=speed)
-        land = self._land_speed()
-        if task.kind == Behaviour.LAND:
-            n, e = task.position_neu[:2]
-            return ControlTarget((n, e, NAN), (NAN, NAN, -land), max_horizontal_speed_m_s=speed,
-                                 max_descent_m_s=land)
-        # RTL
-        home = self.home_neu
-        rtl_height = self.params["RTL_RETURN_ALT"] if self.is_px4 else self.params["RTL_ALT"] / 100.0
-        rtl_up = max(home[2] + rtl_height, task.position_neu[2])
-        if task.phase == 0:
-            if not self.airborne:
-                return ControlTarget(tuple(pos))
-            return ControlTarget((task.position_neu[0], task.position_neu[1], rtl_up))
-        if task.phase == 1:
-            return ControlTarget((home[0], home[1], rtl_up), max_horizontal_speed_m_s=speed)
-        return ControlTarget((home[0], home[1], NAN), (NAN, NAN, -land), max_descent_m_s=land)
-
     def step(self, dt_s: float) -> None:
-        """Advance the vehicle by one physics step (``self.wall_s`` must be current)."""
-        if (self.cfg.strict and self.is_px4 and self.mode.behaviour == Behaviour.OFFBOARD
-                and self.wall_s - self.setpoint_wall_s > self.param_offboard_timeout()):
-            self._hold("offboard setpoints lost: holding position")
-            self.emit("failsafe", "offboard setpoints lost -> hold")
+        """Advance the vehicle by one physics step of ``dt_s`` simulated seconds."""
+        self._boot_events()
         s = self.quad.state
         wind = None
         if self.cfg.wind_m_s != (0.0, 0.0) or self.cfg.gust_m_s > 0:
@@ -304,33 +350,14 @@ class Autopilot(CommandHandlers):
             self._crash(hit, "collision")
         if touched and not self.crashed:
             entry = self.recorder.add_landing(self.sim_time_s, s.position_neu)
-            self.touchdown_s = self.sim_time_s
+            self.ground.on_touchdown()
             self.emit("landed", f"touchdown at N {entry['north_m']:.2f} E {entry['east_m']:.2f} "
                                 f"alt {entry['up_m']:.2f} ({entry['lat_deg']:.7f},{entry['lon_deg']:.7f})")
-        if self.airborne:
-            self.touchdown_s = None
         self._advance_task()
-        delay = self.params["COM_DISARM_LAND"] if self.is_px4 else self.params["DISARM_DELAY"]
-        if self.armed and self.touchdown_s is not None and self.sim_time_s - self.touchdown_s >= delay:
-            self._set_armed(False, "auto-disarm after landing")
-        self.recorder.update(dt_s, s.position_neu, self.armed, self.airborne, self.home_neu[2])
-
-    def _advance_task(self) -> None:
-        task, pos = self.task, self.position_neu
-        if task.kind == Behaviour.TAKEOFF and self.airborne and abs(pos[2] - task.position_neu[2]) < 0.1:
-            self.emit("takeoff", f"takeoff complete at {pos[2] - self.home_neu[2]:.1f} m above home")
-            if self.is_px4:
-                hold = Task(Behaviour.HOLD, task.position_neu)
-                self._enter_mode(self.personality.mode_for(Behaviour.HOLD), hold)
-            else:
-                self.task = Task(Behaviour.OFFBOARD, task.position_neu.copy())
-                self.following = False
-        elif task.kind == Behaviour.RTL and self.airborne:
-            rtl_target = self.control_target().position_neu
-            if task.phase == 0 and pos[2] >= rtl_target[2] - 0.3:
-                task.phase = 1
-            elif task.phase == 1 and math.hypot(*(pos[:2] - self.home_neu[:2])) < 0.5:
-                task.phase = 2
+        self.ground.step()
+        self.failsafes.step()
+        home_up = self.home_neu[2] if self.home_neu is not None else self.boot_neu[2]
+        self.recorder.update(dt_s, s.position_neu, self.armed, self.airborne, home_up)
 
     def _crash(self, hit: Collision | None, why: str) -> None:
         s = self.quad.state
@@ -347,9 +374,22 @@ class Autopilot(CommandHandlers):
         s.on_ground = True
         s.velocity_neu[:] = 0.0
         s.accel_neu[:] = 0.0
-        self._set_armed(False, why)
+        self.set_armed(False, why)
 
     # ------------------------------------------------------------------ telemetry
+    def system_status(self) -> int:
+        """HEARTBEAT system_status. PX4 reports UNINIT while disarmed and not armable (measured: during boot, and
+        in a mode it cannot arm in), STANDBY once it could arm; ArduCopter STANDBY on the ground, ACTIVE in flight."""
+        if self.crashed:
+            return M.MAV_STATE_EMERGENCY
+        if not self.armed:
+            if self.is_px4 and arm_refusal(self, force=False) is not None:
+                return M.MAV_STATE_UNINIT
+            return M.MAV_STATE_STANDBY
+        if self.is_px4:
+            return M.MAV_STATE_ACTIVE
+        return M.MAV_STATE_STANDBY if self.ground.landed else M.MAV_STATE_ACTIVE  # ArduCopter: ACTIVE in flight
+
     def snapshot(self) -> tm.TelemetrySnapshot:
         s = self.quad.state
         pos = s.position_neu.copy()
@@ -357,23 +397,29 @@ class Autopilot(CommandHandlers):
             pos[:2] += self.gps_noise[:2]
             if self.airborne:
                 pos[2] += self.gps_noise[2]
+        home = self.home_neu if self.home_neu is not None else self.boot_neu
         lat, lon, alt = self.city.map_to_geodetic(*pos)
-        hlat, hlon, halt = self.city.map_to_geodetic(*self.home_neu)
+        hlat, hlon, halt = self.city.map_to_geodetic(*home)
+        olat, olon, oalt = self.city.map_to_geodetic(*self.boot_neu)
         local = pos - self.origin_neu
-        home_local = self.home_neu - self.origin_neu
+        home_local = home - self.origin_neu
         roll, pitch, yaw = self.quad.attitude()
-        base = self.mode.base_flags | (M.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
-        status = M.MAV_STATE_ACTIVE if self.armed else M.MAV_STATE_STANDBY
-        if self.crashed:
-            status = M.MAV_STATE_EMERGENCY
+        base = self.personality.base_mode(self.mode, self.armed, self.airborne)
         v = s.velocity_neu
+        has_fix = self.sim_time_s >= self.boot.gps_fix_s
+        if self.is_px4:
+            fix_type = M.GPS_FIX_TYPE_3D_FIX if has_fix else M.GPS_FIX_TYPE_NO_FIX
+        else:  # ArduPilot SITL's simulated u-blox reports RTK fixed
+            fix_type = M.GPS_FIX_TYPE_RTK_FIXED if has_fix else M.GPS_FIX_TYPE_NO_GPS
+        armable = not self.crashed and self.sim_time_s >= self.boot.armable_s and self.home_neu is not None
         return tm.TelemetrySnapshot(
-            int(self.sim_time_s * 1000), lat, lon, alt, alt - self.home_neu[2],
+            int(self.sim_time_s * 1000), lat, lon, alt, alt - home[2],
             float(local[0]), float(local[1]), float(-local[2]) + 0.0, float(v[0]), float(v[1]), float(-v[2]),
             roll, pitch, yaw, s.yaw_rate_rad_s, hlat, hlon, halt,
             float(home_local[0]), float(home_local[1]), float(-home_local[2]) + 0.0,
-            self.personality.autopilot, base, self.mode.custom_mode, status, self.landed_state(),
-            not self.crashed, 50 if self.armed and self.airborne else 0,
+            self.personality.autopilot, base, self.mode.custom_mode, self.system_status(), self.landed_state(),
+            armable, 50 if self.armed and self.airborne else 0,
+            fix_type, has_fix, olat, olon, oalt, not self.is_px4,
         )
 
     def truth(self) -> dict:
@@ -390,4 +436,5 @@ class Autopilot(CommandHandlers):
             "mode": self.mode.name,
             "task": self.task.kind.value,
             "landed_state": M.enums["MAV_LANDED_STATE"][self.landed_state()].name,
+            "ready": not readiness_reason(self),
         }

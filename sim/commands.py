@@ -1,9 +1,34 @@
 """COMMAND_LONG / COMMAND_INT / SET_MODE handling, mixed into :class:`sim.autopilot.Autopilot`.
 
-Every command addressed to system 1 / component 1 (or broadcast) gets exactly one COMMAND_ACK:
-ACCEPTED, DENIED / TEMPORARILY_REJECTED / FAILED (with the reason also sent as a STATUSTEXT
-warning), or UNSUPPORTED for commands the sim does not implement. Every command is recorded in the
-report with its result.
+Every command addressed to system 1 / component 1 (or broadcast) gets exactly one COMMAND_ACK whose
+target_system/component are the sender's, with the result code the real autopilot gives (measured on
+ArduCopter SITL V4.7.0-dev and PX4 v1.15.4 SITL):
+
+=================================================  ==========================  ==========================
+request                                            ArduCopter                  PX4
+=================================================  ==========================  ==========================
+NAV_TAKEOFF while disarmed                         FAILED                      ACCEPTED (mode TAKEOFF;
+                                                                               arming then takes off)
+NAV_TAKEOFF when already flying                    FAILED                      ACCEPTED
+DO_SET_MODE with param1 = 0 (no custom mode)       DENIED                      ACCEPTED (no change)
+DO_SET_MODE to a mode the sim has not got          FAILED                      DENIED
+OFFBOARD without setpoints (``--strict``)          --                          ACCEPTED disarmed,
+                                                                               TEMPORARILY_REJECTED armed
+arm refused (not ready, mode, ...)                 FAILED + "Arm: ..."         TEMPORARILY_REJECTED +
+                                                                               "Arming denied: ..."
+REQUEST_MESSAGE GPS_GLOBAL_ORIGIN (49)             ACCEPTED, then the message  the message, then ACCEPTED
+REQUEST_MESSAGE of a message it cannot send        FAILED                      DENIED
+SET_MESSAGE_INTERVAL of a message it cannot send   DENIED                      FAILED
+GET_HOME_POSITION before home is set               FAILED                      FAILED
+DO_SET_HOME with lat = lon = 0                     home = current position     home = 0,0 (as asked)
+DO_REPOSITION as COMMAND_LONG                      UNSUPPORTED                 UNSUPPORTED when disarmed
+SET_MODE message                                   no COMMAND_ACK              COMMAND_ACK for DO_SET_MODE
+unknown command                                    UNSUPPORTED                 UNSUPPORTED
+=================================================  ==========================  ==========================
+
+Refusals carry a STATUSTEXT only where the real autopilot sends one (arming; PX4's mode switch refusals);
+every command and its reason are recorded in the report. Fault injection (``--deny-*``) always explains itself
+in a STATUSTEXT.
 """
 
 from __future__ import annotations
@@ -14,13 +39,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from . import streams
 from . import telemetry as tm
+from .arming import arm_refusal
 from .faults import command_name
-from .modes import Behaviour, Mode, Task
+from .modes import ArduCopter, Behaviour, Mode, Task
 
 M = mavlink
 NAN = math.nan
 FORCE_MAGIC = 21196.0
+ACCEPTED = M.MAV_RESULT_ACCEPTED
+
 
 @dataclass
 class CommandIn:
@@ -37,7 +66,6 @@ class CommandIn:
         return self.params[n - 1]
 
 
-
 @dataclass
 class LinkState:
     """Per-link protocol state the autopilot cares about (the transport owns the rest)."""
@@ -48,10 +76,28 @@ class LinkState:
     intervals: dict = field(default_factory=dict)
     next_due: dict = field(default_factory=dict)
     warned: set = field(default_factory=set)
+    #: A ground station's HEARTBEAT (type GCS) has arrived on this link.
+    gcs_seen: bool = False
 
 
 class CommandHandlers:
     """Command handlers; relies on the attributes and helpers of :class:`Autopilot`."""
+
+    def command_table(self) -> dict:
+        return {
+            M.MAV_CMD_COMPONENT_ARM_DISARM: self._cmd_arm,
+            M.MAV_CMD_DO_SET_MODE: self._cmd_set_mode,
+            M.MAV_CMD_NAV_TAKEOFF: self._cmd_takeoff,
+            M.MAV_CMD_NAV_LAND: self._cmd_land,
+            M.MAV_CMD_NAV_RETURN_TO_LAUNCH: self._cmd_rtl,
+            M.MAV_CMD_DO_SET_HOME: self._cmd_set_home,
+            M.MAV_CMD_DO_REPOSITION: self._cmd_reposition,
+            M.MAV_CMD_DO_CHANGE_SPEED: self._cmd_change_speed,
+            M.MAV_CMD_SET_MESSAGE_INTERVAL: self._cmd_message_interval,
+            M.MAV_CMD_REQUEST_MESSAGE: self._cmd_request_message,
+            M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: self._cmd_capabilities,
+            M.MAV_CMD_GET_HOME_POSITION: self._cmd_get_home,
+        }
 
     def _on_command(self, link: LinkState, msg) -> None:
         is_int = msg.get_type() == "COMMAND_INT"
@@ -67,22 +113,28 @@ class CommandHandlers:
         if msg.target_system not in (0, tm.SYSTEM_ID) or msg.target_component not in (0, tm.COMPONENT_ID):
             self._record(cmd, None, f"not addressed to {tm.SYSTEM_ID}/{tm.COMPONENT_ID}")
             return
+        self._before_ack: list = []
         self._after_ack = []
-        if self.command_faults.deny_command(cmd.command):
-            result, reason = M.MAV_RESULT_DENIED, "fault injection: command denied"
-        else:
-            handler = self._commands.get(cmd.command)
-            if handler is None:
-                result, reason = M.MAV_RESULT_UNSUPPORTED, ""
+        self._in_command = True
+        try:
+            if self.command_faults.deny_command(cmd.command):
+                result, reason = M.MAV_RESULT_DENIED, "fault injection: command denied"
+                self.statustext(M.MAV_SEVERITY_WARNING, reason)
             else:
-                result, reason = handler(cmd, link)
-        ack = M.MAVLink_command_ack_message(cmd.command, result, 0, 0, cmd.src_system, cmd.src_component)
-        self.send(link, ack)
-        if reason and result != M.MAV_RESULT_ACCEPTED:
-            self.statustext(M.MAV_SEVERITY_WARNING, reason)
+                handler = self._commands.get(cmd.command)
+                if handler is None:
+                    result, reason = M.MAV_RESULT_UNSUPPORTED, ""
+                else:
+                    result, reason = handler(cmd, link)
+        finally:
+            self._in_command = False
+        for target, out in self._before_ack:
+            self.send(target, out)
+        self.send(link, M.MAVLink_command_ack_message(cmd.command, result, 0, 0, cmd.src_system,
+                                                      cmd.src_component))
         for target, out in self._after_ack:
             self.send(target, out)
-        self._after_ack = []
+        self._before_ack, self._after_ack = [], []
         self._record(cmd, result, reason)
 
     def _record(self, cmd: CommandIn, result: int | None, reason: str) -> None:
@@ -97,49 +149,50 @@ class CommandHandlers:
         if cmd.command not in (M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAV_CMD_REQUEST_MESSAGE):
             self.emit("command", f"{name} -> {result_name}" + (f" ({reason})" if reason else ""))
 
+    def _refuse(self, result: int, text: str) -> tuple[int, str]:
+        """A refusal the real autopilot announces in a STATUSTEXT."""
+        self.statustext(M.MAV_SEVERITY_CRITICAL, text)
+        return result, text.rstrip("\t")
+
+    # ------------------------------------------------------------------ arming
     def _cmd_arm(self, cmd: CommandIn, link):
         force = abs(cmd.p(2) - FORCE_MAGIC) < 0.5
         if cmd.p(1) >= 0.5:
             if self.armed:
-                return M.MAV_RESULT_ACCEPTED, ""
+                return ACCEPTED, ""
             if self.command_faults.deny_arm():
                 n, total = self.command_faults.arms_denied, self.cfg.faults.deny_arm_count
-                return M.MAV_RESULT_TEMPORARILY_REJECTED, f"fault injection: arming denied ({n}/{total})"
-            if self.crashed:
-                return M.MAV_RESULT_DENIED, "arming denied: vehicle crashed"
-            if self.airborne:
-                return M.MAV_RESULT_DENIED, "arming denied: in air"
-            if self.home_neu is None:
-                return M.MAV_RESULT_DENIED, "arming denied: no home position"
-            if not self.mode.armable and not force:
-                return M.MAV_RESULT_DENIED, f"arming denied: not in {self.mode.name}"
-            if (self.cfg.strict and self.mode.behaviour == Behaviour.OFFBOARD
-                    and self.wall_s - self.setpoint_wall_s > self.param_offboard_timeout()):
-                return M.MAV_RESULT_DENIED, "arming denied: offboard without setpoints"
-            self._set_armed(True)
-            return M.MAV_RESULT_ACCEPTED, ""
+                text = f"fault injection: arming denied ({n}/{total})"
+                self.statustext(M.MAV_SEVERITY_WARNING, text)
+                return M.MAV_RESULT_TEMPORARILY_REJECTED, text
+            refusal = arm_refusal(self, force)
+            if refusal is not None:
+                return self._refuse(*refusal)
+            self.set_armed(True)
+            self.statustext(M.MAV_SEVERITY_INFO, "Armed by external command\t" if self.is_px4 else "Arming motors")
+            if self.is_px4 and self.mode.behaviour == Behaviour.TAKEOFF:
+                self._announce_px4_takeoff()
+            return ACCEPTED, ""
         if not self.armed:
-            return M.MAV_RESULT_ACCEPTED, ""
+            return ACCEPTED, ""
         if self.airborne and not force:
-            return M.MAV_RESULT_DENIED, "disarm denied: in air (force with param2=21196)"
+            return (M.MAV_RESULT_DENIED if self.is_px4 else M.MAV_RESULT_FAILED), "disarm refused: in air"
         if self.airborne:
             self._crash(None, "forced disarm in flight")
-            return M.MAV_RESULT_ACCEPTED, ""
-        self._set_armed(False)
-        return M.MAV_RESULT_ACCEPTED, ""
+            return ACCEPTED, ""
+        self.statustext(M.MAV_SEVERITY_INFO, "Disarmed by external command\t" if self.is_px4 else "Disarming motors")
+        self.set_armed(False)
+        return ACCEPTED, ""
 
-    def _set_armed(self, armed: bool, why: str = "") -> None:
-        self.armed = armed
-        self.touchdown_s = None
-        if armed and self.task.kind in (Behaviour.HOLD, Behaviour.OFFBOARD):
-            self.task.position_neu = self.position_neu.copy()
-        text = ("ARMED" if armed else "DISARMED") + (f" ({why})" if why else "")
-        self.emit("armed" if armed else "disarmed", text)
-
+    # ------------------------------------------------------------------ modes
     def _cmd_set_mode(self, cmd: CommandIn, link):
+        if not int(cmd.p(1)) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            if self.is_px4:
+                return ACCEPTED, "no custom mode: nothing to change"
+            return M.MAV_RESULT_DENIED, "DO_SET_MODE without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED"
         mode, reason = self.personality.decode_set_mode(int(cmd.p(1)), cmd.p(2), cmd.p(3))
         if mode is None:
-            return M.MAV_RESULT_DENIED, reason
+            return (M.MAV_RESULT_DENIED if self.is_px4 else M.MAV_RESULT_FAILED), reason
         return self._request_mode(mode, link)
 
     def _on_set_mode_msg(self, link, msg) -> None:
@@ -152,56 +205,78 @@ class CommandHandlers:
             result, reason = M.MAV_RESULT_DENIED, f"SET_MODE custom_mode {msg.custom_mode} not supported"
         else:
             result, reason = self._request_mode(mode, link)
-        if not self.is_px4:  # ArduPilot acks SET_MODE with command = message id 11
-            self.send(link, M.MAVLink_command_ack_message(M.MAVLINK_MSG_ID_SET_MODE, result, 0, 0,
+        if self.is_px4:  # PX4 acks it as the DO_SET_MODE it turns it into; ArduCopter 4.7 does not ack it
+            self.send(link, M.MAVLink_command_ack_message(M.MAV_CMD_DO_SET_MODE, result, 0, 0,
                                                           cmd.src_system, cmd.src_component))
-        if reason:
-            self.statustext(M.MAV_SEVERITY_WARNING, reason)
         self._record(cmd, result, reason)
 
     def _request_mode(self, mode: Mode, link):
-        if mode.behaviour == Behaviour.OFFBOARD and self.is_px4:
-            fresh = self.wall_s - self.setpoint_wall_s <= self.param_offboard_timeout()
-            if self.cfg.strict and not fresh:
-                return M.MAV_RESULT_DENIED, "offboard denied: no setpoint stream"
-            if not self.cfg.strict and not link.sent_setpoint and not link.classic:
-                link.classic = True
-                self.emit("dialect", f"link {link.link_id}: OFFBOARD before any setpoint -> classic dialect")
+        if self.is_px4:
+            if mode.behaviour == Behaviour.OFFBOARD and not self.cfg.strict:
+                if not link.sent_setpoint and not link.classic:
+                    link.classic = True
+                    self.emit("dialect", f"link {link.link_id}: OFFBOARD before any setpoint -> classic dialect")
+            elif self.armed and not self._px4_can_run(mode):
+                return self._refuse(M.MAV_RESULT_TEMPORARILY_REJECTED,
+                                    f"Switching to {mode.label} is currently not available\t")
         if mode == self.mode and mode.behaviour == self.task.kind:
-            return M.MAV_RESULT_ACCEPTED, ""
-        self._enter_mode(mode)
-        return M.MAV_RESULT_ACCEPTED, ""
+            return ACCEPTED, ""
+        self.enter_mode(mode)
+        return ACCEPTED, ""
 
+    def _px4_can_run(self, mode: Mode) -> bool:
+        """PX4 lets an armed vehicle switch only to a mode that can run (always while disarmed)."""
+        if mode.needs_rc or mode.name == "MISSION":
+            return False
+        return mode.behaviour != Behaviour.OFFBOARD or self.setpoint_fresh()
+
+    # ------------------------------------------------------------------ takeoff, land, RTL, home
     def _target_up(self, cmd: CommandIn, value: float, relative_default: bool) -> float:
         """Map up (m) of an altitude param, honouring COMMAND_INT frames."""
         frame = cmd.frame
+        home_up = self.home_neu[2] if self.home_neu is not None else self.boot_neu[2]
         if frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT):
-            return self.home_neu[2] + value
+            return home_up + value
         if frame in (M.MAV_FRAME_GLOBAL_TERRAIN_ALT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT):
             p = self.position_neu
             return self._ground_fn(p[0], p[1], p[2] + 0.05) + value
         if frame is None and relative_default:
-            return self.home_neu[2] + value
+            return home_up + value
         return value  # AMSL == map up
 
     def _cmd_takeoff(self, cmd: CommandIn, link):
-        if not self.armed:
-            return M.MAV_RESULT_DENIED, "takeoff denied: not armed"
-        if not self.is_px4 and self.mode.name != "GUIDED":
-            return M.MAV_RESULT_DENIED, "takeoff denied: needs GUIDED"
         pos = self.position_neu
         ground = self._ground_fn(pos[0], pos[1], pos[2] + 0.05)
         alt = cmd.p(7)
         target_up = ground + self._default_takeoff_height() if not math.isfinite(alt) else \
             self._target_up(cmd, alt, relative_default=not self.is_px4)
-        if target_up < ground + 0.5:
-            return M.MAV_RESULT_DENIED, f"takeoff denied: altitude {alt:.1f} below ground"
-        if self.airborne and not self.is_px4:
-            return M.MAV_RESULT_FAILED, "takeoff failed: already flying"
+        if not self.is_px4:
+            if not self.armed:
+                return M.MAV_RESULT_FAILED, "takeoff refused: not armed"
+            if self.mode.name not in ArduCopter.TAKEOFF_MODES:
+                return M.MAV_RESULT_FAILED, f"takeoff refused: {self.mode.name} has no user takeoff"
+            if self.airborne:
+                return M.MAV_RESULT_FAILED, "takeoff refused: already flying"
+            if target_up <= pos[2]:
+                return M.MAV_RESULT_FAILED, f"takeoff refused: altitude {alt:.1f} not above the vehicle"
+            self.task = Task(Behaviour.TAKEOFF, np.array([pos[0], pos[1], target_up]))
+            self.following = False
+            self.emit("takeoff", f"takeoff to {target_up - ground:.1f} m above ground")
+            return ACCEPTED, ""
         target = np.array([pos[0], pos[1], max(target_up, pos[2])])
-        self._enter_mode(self.personality.mode_for(Behaviour.TAKEOFF), Task(Behaviour.TAKEOFF, target))
+        self.enter_mode(self.personality.mode_for(Behaviour.TAKEOFF), Task(Behaviour.TAKEOFF, target))
+        self._takeoff_default_alt = not math.isfinite(alt)
+        if self.armed:
+            self._announce_px4_takeoff()
         self.emit("takeoff", f"takeoff to {target[2] - ground:.1f} m above ground")
-        return M.MAV_RESULT_ACCEPTED, ""
+        return ACCEPTED, ""
+
+    _takeoff_default_alt = False
+
+    def _announce_px4_takeoff(self) -> None:
+        if self._takeoff_default_alt:
+            self.statustext(M.MAV_SEVERITY_INFO,
+                            f"Using default takeoff altitude: {self.params['MIS_TAKEOFF_ALT']:.1f} m\t")
 
     def _latlon_target(self, cmd: CommandIn) -> np.ndarray:
         pos = self.position_neu.copy()
@@ -212,73 +287,83 @@ class CommandHandlers:
 
     def _cmd_land(self, cmd: CommandIn, link):
         task = Task(Behaviour.LAND, self._latlon_target(cmd))
-        self._enter_mode(self.personality.mode_for(Behaviour.LAND), task)
-        return M.MAV_RESULT_ACCEPTED, ""
+        self.enter_mode(self.personality.mode_for(Behaviour.LAND), task)
+        if self.is_px4 and self.armed:
+            self.statustext(M.MAV_SEVERITY_INFO, "Landing at current position\t")
+        return ACCEPTED, ""
 
     def _cmd_rtl(self, cmd: CommandIn, link):
-        self._enter_mode(self.personality.mode_for(Behaviour.RTL))
-        return M.MAV_RESULT_ACCEPTED, ""
+        self.enter_mode(self.personality.mode_for(Behaviour.RTL))
+        return ACCEPTED, ""
 
     def _cmd_set_home(self, cmd: CommandIn, link):
-        if cmd.p(1) >= 0.5:
-            lat, lon, alt = self.city.map_to_geodetic(*self.position_neu)
-        else:
-            lat, lon, alt = cmd.p(5), cmd.p(6), cmd.p(7)
+        lat, lon, alt = cmd.p(5), cmd.p(6), cmd.p(7)
+        use_current = cmd.p(1) >= 0.5 or (not self.is_px4 and lat == 0 and lon == 0)
+        if use_current:
+            self.set_home(self.position_neu.copy(), "DO_SET_HOME current")
+            return ACCEPTED, ""
         if not all(math.isfinite(v) for v in (lat, lon, alt)) or abs(lat) > 90 or abs(lon) > 180:
-            return M.MAV_RESULT_DENIED, "home denied: invalid coordinates"
-        if lat == 0 and lon == 0:
-            return M.MAV_RESULT_DENIED, "home denied: lat/lon 0,0"
-        self.home_neu = np.array(self.city.geodetic_to_map(lat, lon, alt))
-        self.recorder.home = self.recorder.place(*self.home_neu)
-        self.emit("home", f"home set to {lat:.7f},{lon:.7f},{alt:.2f}")
-        self._after_ack.append((None, tm.home_position(self.snapshot())))
-        return M.MAV_RESULT_ACCEPTED, ""
+            return (M.MAV_RESULT_DENIED if self.is_px4 else M.MAV_RESULT_FAILED), "home refused: invalid position"
+        self.set_home(np.array(self.city.geodetic_to_map(lat, lon, alt)), "DO_SET_HOME")
+        return ACCEPTED, ""
 
     def _cmd_reposition(self, cmd: CommandIn, link):
+        if not self.is_px4 and cmd.frame is None:
+            return M.MAV_RESULT_UNSUPPORTED, "ArduPilot takes DO_REPOSITION as COMMAND_INT only"
         if not self.armed or not self.airborne:
-            return M.MAV_RESULT_DENIED, "reposition denied: not flying"
+            return (M.MAV_RESULT_UNSUPPORTED if self.is_px4 else M.MAV_RESULT_FAILED), "reposition: not flying"
         target = self._latlon_target(cmd)
         if math.isfinite(cmd.p(7)):
             target[2] = self._target_up(cmd, cmd.p(7), relative_default=not self.is_px4)
         if math.isfinite(cmd.p(1)) and cmd.p(1) > 0:
             self.speed_limit_m_s = cmd.p(1)
         mode = self.personality.mode_for(Behaviour.HOLD if self.is_px4 else Behaviour.OFFBOARD)
-        self._enter_mode(mode, Task(Behaviour.HOLD, target))
-        return M.MAV_RESULT_ACCEPTED, ""
+        self.enter_mode(mode, Task(Behaviour.HOLD, target))
+        return ACCEPTED, ""
 
     def _cmd_change_speed(self, cmd: CommandIn, link):
         if int(cmd.p(1)) in (0, 1):
             speed = cmd.p(2)
             self.speed_limit_m_s = speed if math.isfinite(speed) and speed > 0 else NAN
-        return M.MAV_RESULT_ACCEPTED, ""
+        return ACCEPTED, ""
 
+    # ------------------------------------------------------------------ messages
     def _cmd_message_interval(self, cmd: CommandIn, link):
         msg_id, interval_us = int(cmd.p(1)), cmd.p(2)
         if msg_id not in tm.BUILDERS:
-            return M.MAV_RESULT_UNSUPPORTED, f"message {msg_id} not streamed"
+            return (M.MAV_RESULT_FAILED if self.is_px4 else M.MAV_RESULT_DENIED), f"message {msg_id} not streamed"
         if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
-            return M.MAV_RESULT_ACCEPTED, ""  # heartbeat stays at 1 Hz
+            return ACCEPTED, ""  # heartbeat stays at 1 Hz
+        sched = self.scheduler
         if interval_us == -1:
-            link.intervals[msg_id] = None
+            sched.set_rate(link, msg_id, None, self.sim_time_s)
         elif interval_us == 0 or not math.isfinite(interval_us):
-            link.intervals[msg_id] = tm.default_intervals(self.cfg.speedup)[msg_id]
+            sched.set_rate(link, msg_id, sched.default_hz(msg_id), self.sim_time_s)
         else:
-            link.intervals[msg_id] = max(1.0 / tm.MAX_RATE_HZ, interval_us / 1e6)
-        link.next_due[msg_id] = self.wall_s
-        return M.MAV_RESULT_ACCEPTED, ""
+            sched.set_rate(link, msg_id, 1e6 / max(interval_us, 1.0), self.sim_time_s)
+        return ACCEPTED, ""
+
+    def _on_request_data_stream(self, link, msg) -> None:
+        if self.is_px4 or msg.target_system not in (0, tm.SYSTEM_ID):
+            return  # PX4 does not implement the deprecated REQUEST_DATA_STREAM
+        streams.request_data_stream(self.scheduler, link, msg.req_stream_id, float(msg.req_message_rate),
+                                    bool(msg.start_stop), self.sim_time_s)
 
     def _cmd_request_message(self, cmd: CommandIn, link):
         msg_id = int(cmd.p(1))
         if msg_id not in tm.BUILDERS:
-            return M.MAV_RESULT_UNSUPPORTED, f"message {msg_id} not available"
-        self._after_ack.append((link, tm.BUILDERS[msg_id](self.snapshot())))
-        return M.MAV_RESULT_ACCEPTED, ""
+            return (M.MAV_RESULT_DENIED if self.is_px4 else M.MAV_RESULT_FAILED), f"message {msg_id} not available"
+        if streams.available(self, msg_id):
+            queue = self._before_ack if self.is_px4 else self._after_ack
+            queue.append((link, tm.BUILDERS[msg_id](self.snapshot())))
+        return ACCEPTED, ""
 
     def _cmd_capabilities(self, cmd: CommandIn, link):
         self._after_ack.append((link, tm.autopilot_version(self.snapshot())))
-        return M.MAV_RESULT_ACCEPTED, ""
+        return ACCEPTED, ""
 
     def _cmd_get_home(self, cmd: CommandIn, link):
-        self._after_ack.append((link, tm.home_position(self.snapshot())))
-        return M.MAV_RESULT_ACCEPTED, ""
-
+        if self.home_neu is None:
+            return M.MAV_RESULT_FAILED, "home not set yet"
+        self._before_ack.append((link, tm.home_position(self.snapshot())))
+        return ACCEPTED, ""

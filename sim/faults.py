@@ -1,12 +1,15 @@
 """Fault injection for reliability tests. Everything is off by default.
 
-Link faults act on whole MAVLink packets, per TCP client, in **wall-clock** time (they exist to
-exercise clients' wall-clock timeouts):
+Link faults act on whole MAVLink packets, per TCP client, in **simulated** time, so that a run at
+``--speedup 5`` meets the same link as one at ``--speedup 1`` (a client sees them shrunk by the
+speedup on its own wall clock):
 
 * ``packet_loss_pct``: each packet, in each direction, is dropped with this probability (seeded).
-* ``latency_ms``: each packet is delayed by this much in each direction (round trip +2x).
-* ``outage_start_s`` / ``outage_duration_s``: from ``start`` wall seconds after the sim starts, for
-  ``duration`` seconds, every packet in both directions is dropped (the TCP socket stays open).
+* ``latency_ms``: each packet is delayed by this many simulated milliseconds in each direction (round
+  trip +2x), with the physics step (20 ms) as resolution.
+* ``outage_start_s`` / ``outage_duration_s``: from ``start`` simulated seconds after the sim starts, for
+  ``duration`` simulated seconds, every packet in both directions is dropped (the TCP socket stays
+  open).
 
 Command faults:
 
@@ -33,6 +36,20 @@ class FaultConfig:
     outage_duration_s: float = 0.0
     deny_arm_count: int = 0
     deny_commands: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.packet_loss_pct <= 100.0:  # also refuses NaN
+            raise ValueError(f"packet loss must be in [0, 100] %, not {self.packet_loss_pct}")
+        if not 0.0 <= self.latency_ms <= 60_000.0:
+            raise ValueError(f"latency must be in [0, 60000] ms, not {self.latency_ms}")
+        if self.outage_start_s is not None and not 0.0 <= self.outage_start_s <= 1e6:
+            raise ValueError(f"outage start must be in [0, 1e6] s, not {self.outage_start_s}")
+        if not 0.0 <= self.outage_duration_s <= 1e6:
+            raise ValueError(f"outage duration must be in [0, 1e6] s, not {self.outage_duration_s}")
+        if int(self.deny_arm_count) != self.deny_arm_count or self.deny_arm_count < 0:
+            raise ValueError(f"deny-arm count must be a whole number >= 0, not {self.deny_arm_count}")
+        for name in self.deny_commands:
+            command_id(name)
 
     def active(self) -> list[str]:
         """Human-readable list of the faults that are on."""
@@ -91,21 +108,22 @@ class LinkFaults:
 
     @property
     def delay_s(self) -> float:
-        return max(0.0, self.config.latency_ms) / 1000.0
+        """One-way latency (simulated s)."""
+        return self.config.latency_ms / 1000.0
 
-    def in_outage(self, elapsed_wall_s: float) -> bool:
+    def in_outage(self, sim_time_s: float) -> bool:
         start = self.config.outage_start_s
-        return start is not None and start <= elapsed_wall_s < start + self.config.outage_duration_s
+        return start is not None and start <= sim_time_s < start + self.config.outage_duration_s
 
-    def drop_in(self, elapsed_wall_s: float) -> bool:
+    def drop_in(self, sim_time_s: float) -> bool:
         """Whether the next incoming packet is lost."""
-        lost = self.in_outage(elapsed_wall_s) or self._rng_in.random() * 100.0 < self.config.packet_loss_pct
+        lost = self.in_outage(sim_time_s) or self._rng_in.random() * 100.0 < self.config.packet_loss_pct
         self.dropped_in += lost
         return lost
 
-    def drop_out(self, elapsed_wall_s: float) -> bool:
+    def drop_out(self, sim_time_s: float) -> bool:
         """Whether the next outgoing packet is lost."""
-        lost = self.in_outage(elapsed_wall_s) or self._rng_out.random() * 100.0 < self.config.packet_loss_pct
+        lost = self.in_outage(sim_time_s) or self._rng_out.random() * 100.0 < self.config.packet_loss_pct
         self.dropped_out += lost
         return lost
 

@@ -12,6 +12,9 @@ CRC with its CRC_EXTRA correct); otherwise it skips one byte and looks for the n
 While a candidate is still incomplete, a complete valid frame starting later in the buffer proves the
 candidate was junk, so a stray marker with a large length byte cannot hold real packets back.
 Skipped bytes are counted (``junk_bytes``) so the caller can report them; they are never an error.
+
+With signing enabled on the decoder (:mod:`sim.signing`), a frame that is well formed but unsigned or
+wrongly signed is dropped whole and counted in ``rejected_frames``.
 """
 
 from __future__ import annotations
@@ -20,6 +23,9 @@ from pymavlink.dialects.v20 import common as mavlink
 
 _V1, _V2 = mavlink.PROTOCOL_MARKER_V1, mavlink.PROTOCOL_MARKER_V2
 _SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
+
+
+_REJECTED = object()
 
 
 class FrameScanner:
@@ -35,6 +41,7 @@ class FrameScanner:
         self.mav = mav
         self.buf = bytearray()
         self.junk_bytes = 0  # total skipped on this stream
+        self.rejected_frames = 0  # well-formed frames refused for their signature
 
     def feed(self, data: bytes) -> tuple[list, int]:
         """Add ``data``; return (messages now complete, bytes skipped as not MAVLink by this call)."""
@@ -64,6 +71,10 @@ class FrameScanner:
                 i = later
                 continue
             msg = self._decode(i, length)
+            if msg is _REJECTED:
+                self.rejected_frames += 1
+                i += length
+                continue
             if msg is None:
                 junk += 1
                 i += 1
@@ -97,10 +108,12 @@ class FrameScanner:
         return mavlink.HEADER_LEN_V2 + buf[i + 1] + 2 + sig
 
     def _decode(self, i: int, length: int):
+        refused = self.mav.signing.reject_count
         try:
             msg = self.mav.decode(bytearray(self.buf[i:i + length]))
         except mavlink.MAVError:
-            return None
+            # pymavlink checks the CRC before the signature: a refusal means a whole, valid frame.
+            return _REJECTED if self.mav.signing.reject_count > refused else None
         if isinstance(msg, mavlink.MAVLink_unknown):  # no CRC_EXTRA to check it against
             return None
         return msg
@@ -111,6 +124,18 @@ class FrameScanner:
             if start < 0:
                 return None
             length = self._frame_length(start)
-            if length and start + length <= len(self.buf) and self._decode(start, length) is not None:
+            if length and start + length <= len(self.buf) and self._decode_peek(start, length):
                 return start
             i = start + 1
+
+    def _decode_peek(self, start: int, length: int) -> bool:
+        """Whether a whole frame starts at ``start``, without counting or consuming it."""
+        signing = self.mav.signing
+        counters = (signing.reject_count, signing.badsig_count, signing.goodsig_count, signing.unsigned_count,
+                    signing.sig_count, dict(signing.stream_timestamps), signing.timestamp)
+        try:
+            return self._decode(start, length) is not None
+        finally:
+            (signing.reject_count, signing.badsig_count, signing.goodsig_count, signing.unsigned_count,
+             signing.sig_count, stream_timestamps, signing.timestamp) = counters
+            signing.stream_timestamps = stream_timestamps

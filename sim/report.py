@@ -102,6 +102,8 @@ class FlightRecorder:
         self.commands: list[dict] = []
         self.events: list[dict] = []
         self.setpoints_received = 0
+        self.last_setpoint_sim_time_s: float | None = None
+        self.last_gcs_heartbeat_sim_time_s: float | None = None
         self._last_pos: np.ndarray | None = None
 
     def place(self, north_m: float, east_m: float, up_m: float) -> dict:
@@ -179,6 +181,8 @@ class FlightRecorder:
             "collisions": self.collisions,
             "commands": self.commands,
             "setpoints_received": self.setpoints_received,
+            "last_setpoint_sim_time_s": self.last_setpoint_sim_time_s,
+            "last_gcs_heartbeat_sim_time_s": self.last_gcs_heartbeat_sim_time_s,
             "events": self.events,
         }
 

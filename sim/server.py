@@ -1,8 +1,9 @@
 """TCP transport (several clients at once) and the tlog writer.
 
 Everything here runs on the simulation thread: a non-blocking listening socket and client sockets
-multiplexed with :mod:`selectors`. Each client gets its own pymavlink encoder (own sequence numbers),
-its own fault injector and its own stream rates.
+multiplexed with :mod:`selectors`. Each client gets its own pymavlink encoder (own sequence numbers
+and, with a signing key, its own signing state), its own fault injector and its own stream rates.
+Link faults (latency, loss, outage) are applied in simulated time (:mod:`sim.faults`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from . import signing
 from .commands import LinkState
 from .faults import FaultConfig, LinkFaults
 from .framing import FrameScanner
@@ -31,13 +33,17 @@ MAX_BACKLOG_BYTES = 4 * 1024 * 1024
 class TcpLink(LinkState):
     """One connected client."""
 
-    def __init__(self, link_id: int, sock: socket.socket, peer: str, faults: LinkFaults) -> None:
+    def __init__(self, link_id: int, sock: socket.socket, peer: str, faults: LinkFaults,
+                 signing_key: bytes | None = None) -> None:
         super().__init__(link_id)
         self.sock = sock
         self.peer = peer
         self.faults = faults
         self.mav = mavlink.MAVLink(None, SYSTEM_ID, COMPONENT_ID)
+        if signing_key is not None:
+            signing.enable(self.mav, signing_key, link_id)
         self.scanner = FrameScanner(self.mav)
+        self.rejected_reported = 0
         self.junk_unreported = 0  # bytes skipped as not MAVLink, not yet reported by the simulator
         self.out_buf = bytearray()
         self.delayed_out: collections.deque = collections.deque()
@@ -46,18 +52,27 @@ class TcpLink(LinkState):
         self.packets_in = 0
         self.packets_out = 0
 
-    def queue(self, msg, wall_s: float, elapsed_s: float) -> None:
+    def queue(self, msg, sim_s: float) -> None:
         """Pack ``msg`` for this link (sequence number advances even if the packet is then lost)."""
         data = msg.pack(self.mav)
-        if self.faults.drop_out(elapsed_s):
+        self.packets_out += 1
+        if self.faults.drop_out(sim_s):
             return
         delay = self.faults.delay_s
         if delay > 0:
-            self.delayed_out.append((wall_s + delay, data))
+            self.delayed_out.append((sim_s + delay, data))
         else:
             self.out_buf += data
 
-    def receive(self, wall_s: float, elapsed_s: float) -> list:
+    def stats(self) -> dict:
+        """Packet counts of this link for the report."""
+        return {
+            "link": self.link_id, "peer": self.peer, "packets_in": self.packets_in, "packets_out": self.packets_out,
+            "dropped_in": self.faults.dropped_in, "dropped_out": self.faults.dropped_out,
+            "rejected_signature": self.scanner.rejected_frames, "junk_bytes": self.scanner.junk_bytes,
+        }
+
+    def receive(self, sim_s: float) -> list:
         """Read what the socket has; return messages whose (latency-delayed) arrival is due."""
         try:
             data = self.sock.recv(65536)
@@ -72,19 +87,19 @@ class TcpLink(LinkState):
             self.junk_unreported += junk
             for msg in msgs:
                 self.packets_in += 1
-                if self.faults.drop_in(elapsed_s):
+                if self.faults.drop_in(sim_s):
                     continue
-                self.delayed_in.append((wall_s + self.faults.delay_s, msg))
-        return self.due_in(wall_s)
+                self.delayed_in.append((sim_s + self.faults.delay_s, msg))
+        return self.due_in(sim_s)
 
-    def due_in(self, wall_s: float) -> list:
+    def due_in(self, sim_s: float) -> list:
         out = []
-        while self.delayed_in and self.delayed_in[0][0] <= wall_s:
+        while self.delayed_in and self.delayed_in[0][0] <= sim_s + 1e-9:
             out.append(self.delayed_in.popleft()[1])
         return out
 
-    def flush(self, wall_s: float) -> None:
-        while self.delayed_out and self.delayed_out[0][0] <= wall_s:
+    def flush(self, sim_s: float) -> None:
+        while self.delayed_out and self.delayed_out[0][0] <= sim_s + 1e-9:
             self.out_buf += self.delayed_out.popleft()[1]
         if not self.out_buf or self.closed:
             return
@@ -124,13 +139,13 @@ class TlogLink(LinkState):
         if not self.file.closed:
             self.file.write(struct.pack(">Q", int(time.time() * 1e6)) + bytes(data))
 
-    def queue(self, msg, wall_s: float, elapsed_s: float) -> None:
+    def queue(self, msg, sim_s: float) -> None:
         self._write(msg.pack(self.mav))
 
     def record_incoming(self, msg) -> None:
         self._write(msg.get_msgbuf())
 
-    def flush(self, wall_s: float) -> None:
+    def flush(self, sim_s: float) -> None:
         pass
 
     def close(self) -> None:
@@ -149,11 +164,16 @@ class TcpServer:
         Applied to every link.
     seed : int
         Seed for per-link packet loss.
+    signing_key : bytes or None
+        With a key every link signs what it sends and drops unsigned or wrongly signed frames.
     """
 
-    def __init__(self, host: str, port: int, faults: FaultConfig, seed: int) -> None:
+    def __init__(self, host: str, port: int, faults: FaultConfig, seed: int,
+                 signing_key: bytes | None = None) -> None:
         self.faults = faults
         self.seed = seed
+        self.signing_key = signing_key
+        self.closed_stats: list[dict] = []
         self.selector = selectors.DefaultSelector()
         self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -169,7 +189,7 @@ class TcpServer:
         self.links: list[TcpLink] = []
         self._next_id = 1
 
-    def poll(self, timeout_s: float, wall_s: float, elapsed_s: float):
+    def poll(self, timeout_s: float, sim_s: float):
         """Wait up to ``timeout_s`` for I/O.
 
         Returns
@@ -188,17 +208,17 @@ class TcpServer:
                 sock.setblocking(False)
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 link = TcpLink(self._next_id, sock, f"{addr[0]}:{addr[1]}",
-                               LinkFaults(self.faults, self.seed, self._next_id))
+                               LinkFaults(self.faults, self.seed, self._next_id), self.signing_key)
                 self._next_id += 1
                 self.selector.register(sock, selectors.EVENT_READ, link)
                 self.links.append(link)
                 new_links.append(link)
             else:
                 link = key.data
-                messages += [(link, m) for m in link.receive(wall_s, elapsed_s)]
+                messages += [(link, m) for m in link.receive(sim_s)]
         for link in self.links:
             if link.delayed_in:
-                messages += [(link, m) for m in link.due_in(wall_s)]
+                messages += [(link, m) for m in link.due_in(sim_s)]
             if link.closed:
                 closed.append(link)
         for link in closed:
@@ -213,10 +233,15 @@ class TcpServer:
         link.close()
         if link in self.links:
             self.links.remove(link)
+            self.closed_stats.append(link.stats())
 
-    def close(self) -> None:
+    def stats(self) -> list[dict]:
+        """Packet counts of every link so far, closed ones first."""
+        return self.closed_stats + [link.stats() for link in self.links]
+
+    def close(self, sim_s: float) -> None:
         for link in list(self.links):
-            link.flush(time.monotonic())
+            link.flush(sim_s)
             self._drop(link)
         try:
             self.selector.unregister(self.listener)

@@ -15,16 +15,24 @@ import threading
 import time
 from collections.abc import Callable
 
-from . import telemetry as tm
+from pymavlink.dialects.v20 import common as mavlink
+
+from . import streams
 from .autopilot import Autopilot
 from .config import SimConfig
 from .report import FlightRecorder, write_report
 from .server import TcpLink, TcpServer, TlogLink
-from .telemetry import default_intervals
+from .signing import secret_key
 from .world import CityMap
 
 log = logging.getLogger(__name__)
-M_HOME, M_GPI, M_LPN, M_HB = 242, 33, 32, 0
+M = mavlink
+#: What the tlog records besides every message sent and received (Hz, simulated time): the vehicle's track.
+TLOG_RATES_HZ = {
+    M.MAVLINK_MSG_ID_HEARTBEAT: 1.0, M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 10.0, M.MAVLINK_MSG_ID_ATTITUDE: 10.0,
+    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0, M.MAVLINK_MSG_ID_SYS_STATUS: 1.0, M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+}
 
 #: At most this much wall time (s) of physics is caught up per loop turn; beyond it the sim slows.
 MAX_CATCHUP_WALL_S = 0.1
@@ -64,8 +72,7 @@ class Simulator:
         self.autopilot = Autopilot(config, self.city, self.recorder, self._send, self._emit)
         ap = self.autopilot
         self.recorder.start = self.recorder.place(*ap.position_neu)
-        self.recorder.home = self.recorder.place(*ap.home_neu)
-        self._intervals = default_intervals(config.speedup)
+        self._signing_key = None if config.signing_key is None else secret_key(config.signing_key)
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -77,7 +84,7 @@ class Simulator:
 
     @property
     def started_wall_s(self) -> float:
-        """``time.monotonic()`` when the simulator started (origin of the link-fault clock)."""
+        """``time.monotonic()`` when the simulator started."""
         return self._t0
 
     @property
@@ -88,14 +95,18 @@ class Simulator:
         """Bind the socket and start the simulation thread."""
         if self._thread is not None:
             raise SimulatorError("simulator already started")
-        self._server = TcpServer(self.config.host, self.config.port, self.config.faults, self.config.seed)
+        self._server = TcpServer(self.config.host, self.config.port, self.config.faults, self.config.seed,
+                                 self._signing_key)
         if self.config.tlog_path is not None:
             self._tlog = TlogLink(self.config.tlog_path)
-            self._tlog.intervals = dict(default_intervals(1.0))
+            for msg_id, hz in TLOG_RATES_HZ.items():
+                self.autopilot.scheduler.set_rate(self._tlog, msg_id, hz, 0.0)
         self._t0 = time.monotonic()
+        boot = self.config.boot if isinstance(self.config.boot, str) else "custom"
         self._emit("listening", f"MAVLink on tcp:{self._server.host}:{self._server.port} "
                                 f"({self.config.autopilot}{', strict' if self.config.strict else ''}, "
-                                f"speedup {self.config.speedup:g}, {len(self.city)} boxes)")
+                                f"speedup {self.config.speedup:g}, boot {boot}, {len(self.city)} boxes"
+                                f"{', signed' if self._signing_key else ''})")
         for fault in self.config.faults.active():
             self._emit("fault", fault)
         self._thread = threading.Thread(target=self._run, name="sim", daemon=True)
@@ -116,7 +127,7 @@ class Simulator:
                 raise SimulatorError(f"simulation thread did not stop within {timeout_s} s")
         with self._lock:
             if self._server is not None:
-                self._server.close()
+                self._server.close(self.autopilot.sim_time_s)
             if self._tlog is not None:
                 self._tlog.close()
             report = self.report()
@@ -141,8 +152,13 @@ class Simulator:
         """The flight report (see ``sim/__init__.py`` for the keys)."""
         with self._lock:
             ap = self.autopilot
-            return self.recorder.to_dict(ap.truth(), self.config.as_dict(), ap.sim_time_s,
-                                         time.monotonic() - self._t0)
+            report = self.recorder.to_dict(ap.truth(), self.config.as_dict(), ap.sim_time_s,
+                                           time.monotonic() - self._t0)
+            links = [] if self._server is None else self._server.stats()
+            report["links"] = links
+            report["signing"] = {"enabled": self._signing_key is not None,
+                                 "rejected_frames": sum(link["rejected_signature"] for link in links)}
+            return report
 
     def truth(self) -> dict:
         """The vehicle's true state right now (map frame, see :meth:`Autopilot.truth`)."""
@@ -175,47 +191,48 @@ class Simulator:
         if self.on_event is not None:
             self.on_event(line)
 
-    def _elapsed(self, wall_s: float) -> float:
-        return wall_s - self._t0
-
     def _send(self, link, msg) -> None:
-        wall = time.monotonic()
-        elapsed = self._elapsed(wall)
-        if link is None:
-            for each in self._server.links:
-                each.queue(msg, wall, elapsed)
-        else:
-            link.queue(msg, wall, elapsed)
-        if self._tlog is not None:
-            self._tlog.queue(msg, wall, elapsed)
-
-    def _on_connect(self, link: TcpLink, wall_s: float) -> None:
-        link.intervals = dict(self._intervals)
+        if self._server is None or not hasattr(self, "autopilot"):
+            return
         ap = self.autopilot
-        self._emit("client", f"link {link.link_id} connected from {link.peer}")
-        snap = ap.snapshot()
-        for msg_id in (M_HOME, M_GPI, M_LPN, M_HB):  # position and home before the first heartbeat
-            link.queue(tm.BUILDERS[msg_id](snap), wall_s, self._elapsed(wall_s))
-        for msg_id, interval in link.intervals.items():
-            if interval is not None:
-                link.next_due[msg_id] = wall_s + interval
+        sim_s = ap.sim_time_s
+        for each in (self._server.links if link is None else [link]):
+            if ap.delivers(each, msg):
+                each.queue(msg, sim_s)
+        if self._tlog is not None:
+            self._tlog.queue(msg, sim_s)
 
-    def _stream(self, links, wall_s: float) -> None:
+    def _on_connect(self, link: TcpLink) -> None:
+        self.autopilot.scheduler.attach(link, self.autopilot.sim_time_s)
+        self._emit("client", f"link {link.link_id} connected from {link.peer}")
+
+    def _stream(self, links) -> None:
+        ap = self.autopilot
+        now = ap.sim_time_s
         cache: dict = {}
         snap = None
-        elapsed = self._elapsed(wall_s)
+        def ready(msg_id: int) -> bool:
+            return streams.available(ap, msg_id)
+
         for link in links:
-            for msg_id, interval in link.intervals.items():
-                if interval is None:
-                    continue
-                due = link.next_due.get(msg_id, wall_s)
-                if wall_s < due:
-                    continue
+            for msg_id in ap.scheduler.due(link, now, ready):
                 if msg_id not in cache:
-                    snap = snap or self.autopilot.snapshot()
-                    cache[msg_id] = tm.BUILDERS[msg_id](snap)
-                link.queue(cache[msg_id], wall_s, elapsed)
-                link.next_due[msg_id] = due + interval if due + interval > wall_s else wall_s + interval
+                    snap = snap or ap.snapshot()
+                    cache[msg_id] = streams.build(ap, msg_id, snap)
+                if cache[msg_id] is not None:
+                    link.queue(cache[msg_id], now)
+
+    def _report_link_events(self, links) -> None:
+        for link in links:
+            if link.junk_unreported:
+                self._emit("client", f"link {link.link_id}: ignored {link.junk_unreported} byte(s) that are "
+                           "not MAVLink (e.g. udacidrone send_waypoints() msgpack)")
+                link.junk_unreported = 0
+            rejected = link.scanner.rejected_frames
+            if rejected > link.rejected_reported:
+                if link.rejected_reported == 0:
+                    self._emit("signing", f"link {link.link_id}: dropping unsigned or wrongly signed frames")
+                link.rejected_reported = rejected
 
     def _run(self) -> None:
         try:
@@ -234,22 +251,16 @@ class Simulator:
         sim_origin_wall = self._t0
         timeout = 0.0
         while not self._stop.is_set():
-            wall = time.monotonic()
-            new_links, messages, closed = server.poll(timeout, wall, self._elapsed(wall))
+            new_links, messages, closed = server.poll(timeout, ap.sim_time_s)
             wall = time.monotonic()
             with self._lock:
-                ap.wall_s = wall
                 for link in new_links:
-                    self._on_connect(link, wall)
+                    self._on_connect(link)
                 for link, msg in messages:
                     if self._tlog is not None:
                         self._tlog.record_incoming(msg)
                     ap.handle(link, msg)
-                for link in list(server.links) + closed:
-                    if link.junk_unreported:
-                        self._emit("client", f"link {link.link_id}: ignored {link.junk_unreported} byte(s) that are "
-                                   "not MAVLink (e.g. udacidrone send_waypoints() msgpack)")
-                        link.junk_unreported = 0
+                self._report_link_events(list(server.links) + closed)
                 for link in closed:
                     self._emit("client", f"link {link.link_id} disconnected")
                 target_sim = (wall - sim_origin_wall) * cfg.speedup
@@ -263,11 +274,8 @@ class Simulator:
                     sim_origin_wall += lag  # fall back rather than spiral
                     self.behind_s += lag
                 links = list(server.links) + ([self._tlog] if self._tlog is not None else [])
-                self._stream(links, wall)
+                self._stream(links)
                 for link in server.links:
-                    link.flush(wall)
+                    link.flush(ap.sim_time_s)
             next_step_wall = sim_origin_wall + (ap.sim_time_s + dt) / cfg.speedup
-            pending = any(link.out_buf or link.delayed_out or link.delayed_in for link in server.links)
             timeout = min(0.01, max(0.0, next_step_wall - time.monotonic()))
-            if pending:
-                timeout = min(timeout, 0.002)

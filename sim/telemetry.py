@@ -1,12 +1,15 @@
-"""Outgoing MAVLink: telemetry message builders, stream rates and the parameter table.
+"""Outgoing MAVLink: telemetry message builders.
 
 Builders read a :class:`TelemetrySnapshot` (SI units, map frame) and return pymavlink message
-objects of the common v2 dialect; the transport packs them per link.
+objects of the common v2 dialect; the transport packs them per link. What is sent when is
+:mod:`sim.streams`; the parameter table is :mod:`sim.params`.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
+import time
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -15,30 +18,6 @@ SYSTEM_ID = 1
 COMPONENT_ID = 1
 
 M = mavlink  # short alias for enum names below
-
-#: Default stream intervals (wall-clock seconds) per message id; None = only on request.
-DEFAULT_INTERVALS_S: dict[int, float | None] = {
-    M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
-    M.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
-    M.MAVLINK_MSG_ID_GPS_RAW_INT: 0.5,
-    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.1,
-    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 0.1,
-    M.MAVLINK_MSG_ID_ATTITUDE: 0.1,
-    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 0.5,
-    M.MAVLINK_MSG_ID_HOME_POSITION: 2.0,
-    M.MAVLINK_MSG_ID_VFR_HUD: 0.5,
-    M.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
-    M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: None,
-    M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: None,
-}
-#: Messages whose default rate scales with the speedup (capped at :data:`MAX_RATE_HZ`).
-FAST_STREAMS = {
-    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
-    M.MAVLINK_MSG_ID_ATTITUDE,
-    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
-}
-MAX_RATE_HZ = 50.0
 
 SENSORS = (
     M.MAV_SYS_STATUS_SENSOR_3D_GYRO
@@ -56,13 +35,11 @@ SENSORS = (
     | M.MAV_SYS_STATUS_PREARM_CHECK
 )
 
-CAPABILITIES = (
-    M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-    | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-    | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
-    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-)
+#: AUTOPILOT_VERSION.capabilities as the real autopilots send them (measured on PX4 1.15.4 and ArduCopter 4.7.0-dev
+#: SITL). PX4's includes MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE: its integer parameters come bytewise
+#: (sim.params), which a client reads from this bit.
+CAPABILITIES_PX4 = 0xE8FF
+CAPABILITIES_ARDUPILOT = 0xFBEF
 
 
 @dataclass
@@ -101,6 +78,13 @@ class TelemetrySnapshot:
     landed_state: int
     armable: bool
     throttle_pct: int
+    gps_fix_type: int
+    gps_has_fix: bool
+    origin_lat_deg: float
+    origin_lon_deg: float
+    origin_alt_m: float
+    #: ArduPilot's GLOBAL_POSITION_INT reads 0,0 until the GPS has a fix.
+    global_zero_until_fix: bool
 
 
 def _deg7(value: float) -> int:
@@ -125,15 +109,20 @@ def sys_status(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
 
 
 def gps_raw_int(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    if not s.gps_has_fix:
+        return mavlink.MAVLink_gps_raw_int_message(s.time_boot_ms * 1000, s.gps_fix_type, 0, 0, 0, 65535, 65535,
+                                                   0, 65535, 0)
     vel = math.hypot(s.vel_north_m_s, s.vel_east_m_s)
     cog = _cdeg(math.atan2(s.vel_east_m_s, s.vel_north_m_s)) if vel > 0.1 else 65535
     return mavlink.MAVLink_gps_raw_int_message(
-        s.time_boot_ms * 1000, M.GPS_FIX_TYPE_3D_FIX, _deg7(s.lat_deg), _deg7(s.lon_deg),
+        s.time_boot_ms * 1000, s.gps_fix_type, _deg7(s.lat_deg), _deg7(s.lon_deg),
         int(round(s.alt_m * 1000)), 80, 120, int(round(vel * 100)), cog, 14,
     )
 
 
 def global_position_int(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    if s.global_zero_until_fix and not s.gps_has_fix:
+        return mavlink.MAVLink_global_position_int_message(s.time_boot_ms, 0, 0, 0, 0, 0, 0, 0, _cdeg(s.yaw_rad))
     return mavlink.MAVLink_global_position_int_message(
         s.time_boot_ms, _deg7(s.lat_deg), _deg7(s.lon_deg), int(round(s.alt_m * 1000)),
         int(round(s.relative_alt_m * 1000)), int(round(s.vel_north_m_s * 100)),
@@ -183,6 +172,16 @@ def home_position(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
     )
 
 
+def gps_global_origin(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_gps_global_origin_message(
+        _deg7(s.origin_lat_deg), _deg7(s.origin_lon_deg), int(round(s.origin_alt_m * 1000)), s.time_boot_ms * 1000
+    )
+
+
+def system_time(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_system_time_message(int(time.time() * 1e6), s.time_boot_ms)
+
+
 def vfr_hud(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
     ground = math.hypot(s.vel_north_m_s, s.vel_east_m_s)
     return mavlink.MAVLink_vfr_hud_message(
@@ -198,8 +197,9 @@ def battery_status(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
 
 
 def autopilot_version(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    capabilities = CAPABILITIES_PX4 if s.autopilot == M.MAV_AUTOPILOT_PX4 else CAPABILITIES_ARDUPILOT
     return mavlink.MAVLink_autopilot_version_message(
-        CAPABILITIES, 0x01000000, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5349_4D00_0000_0001
+        capabilities, 0x01000000, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5349_4D00_0000_0001
     )
 
 
@@ -216,17 +216,12 @@ BUILDERS = {
     M.MAVLINK_MSG_ID_VFR_HUD: vfr_hud,
     M.MAVLINK_MSG_ID_BATTERY_STATUS: battery_status,
     M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
+    M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: gps_global_origin,
+    M.MAVLINK_MSG_ID_SYSTEM_TIME: system_time,
 }
 
 
-def default_intervals(speedup: float) -> dict[int, float | None]:
-    """Per-link default intervals (wall s); fast streams run ``speedup`` times faster, up to 50 Hz."""
-    out = dict(DEFAULT_INTERVALS_S)
-    for msg_id in FAST_STREAMS:
-        base = out[msg_id]
-        if base is not None:
-            out[msg_id] = max(1.0 / MAX_RATE_HZ, base / max(1.0, speedup))
-    return out
+_CHUNK_IDS = itertools.count()
 
 
 def statustext(severity: int, text: str) -> list[mavlink.MAVLink_message]:
@@ -235,36 +230,5 @@ def statustext(severity: int, text: str) -> list[mavlink.MAVLink_message]:
     if len(raw) <= 50:
         return [mavlink.MAVLink_statustext_message(severity, raw, 0, 0)]
     chunks = [raw[i : i + 50] for i in range(0, len(raw), 50)]
-    ident = (hash(text) & 0xFFFE) + 1
+    ident = next(_CHUNK_IDS) % 65535 + 1
     return [mavlink.MAVLink_statustext_message(severity, c, ident, k) for k, c in enumerate(chunks)]
-
-
-# --------------------------------------------------------------------------- parameters
-REAL32 = M.MAV_PARAM_TYPE_REAL32
-INT32 = M.MAV_PARAM_TYPE_INT32
-
-#: name -> (default value, MAV_PARAM_TYPE, description). Values are sent as floats (C cast).
-PX4_PARAMS: dict[str, tuple[float, int, str]] = {
-    "MIS_TAKEOFF_ALT": (2.5, REAL32, "takeoff height above ground when NAV_TAKEOFF param7 is NaN (m)"),
-    "RTL_RETURN_ALT": (60.0, REAL32, "RTL climbs to this height above home first (m)"),
-    "COM_OF_LOSS_T": (0.5, REAL32, "--strict: offboard setpoint timeout (wall-clock s)"),
-    "COM_DISARM_LAND": (2.0, REAL32, "auto-disarm delay after touchdown (sim s)"),
-    "MPC_XY_VEL_MAX": (10.0, REAL32, "max horizontal speed (m/s)"),
-    "MPC_Z_VEL_MAX_UP": (3.0, REAL32, "max climb rate (m/s)"),
-    "MPC_Z_VEL_MAX_DN": (1.5, REAL32, "max descent rate (m/s)"),
-    "MPC_LAND_SPEED": (0.7, REAL32, "landing descent rate (m/s)"),
-}
-
-ARDUPILOT_PARAMS: dict[str, tuple[float, int, str]] = {
-    "PILOT_TKOFF_ALT": (250.0, REAL32, "takeoff height when NAV_TAKEOFF param7 is NaN (cm)"),
-    "RTL_ALT": (1500.0, INT32, "RTL climbs to this height above home first (cm)"),
-    "DISARM_DELAY": (2.0, INT32, "auto-disarm delay after touchdown (s)"),
-    "WPNAV_SPEED": (1000.0, REAL32, "max horizontal speed (cm/s)"),
-    "WPNAV_SPEED_UP": (300.0, REAL32, "max climb rate (cm/s)"),
-    "WPNAV_SPEED_DN": (150.0, REAL32, "max descent rate (cm/s)"),
-    "LAND_SPEED": (50.0, INT32, "landing descent rate (cm/s)"),
-}
-
-
-def param_value(name: str, value: float, ptype: int, count: int, index: int) -> mavlink.MAVLink_message:
-    return mavlink.MAVLink_param_value_message(name.encode("ascii"), float(value), ptype, count, index)

@@ -9,32 +9,33 @@ reported as "AMSL" by the sim. Conversions to geodetic go through :mod:`pymap3d`
 Map file
 --------
 Line 1: ``lat0 37.792480, lon0 -122.397450``; line 2: ``posX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ``;
-then one box per row: centre north, east, up and half sizes along north, east, up (metres).
+then one box per row: centre north, east, up and half sizes along north, east, up (metres). The
+rules and their error messages are :mod:`sim.mapfile`.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pymap3d
 
-log = logging.getLogger(__name__)
+from .mapfile import MapFormatError, read_colliders
 
-_HEADER_RE = re.compile(r"lat0\s+([-+0-9.eE]+)\s*,\s*lon0\s+([-+0-9.eE]+)")
+log = logging.getLogger(__name__)
 
 #: Edge of one spatial-index cell (m). Boxes in the SF map are at most 10 m wide.
 CELL_M = 25.0
+#: A box that covers more index cells than this goes to a short list checked on every query instead, so that
+#: the index stays bounded (a 50 km box would otherwise fill four million cells).
+MAX_CELLS_PER_BOX = 256
 #: Distances beyond this (m) are not searched: :meth:`CityMap.nearest_box` returns this cap.
 SEARCH_CAP_M = 50.0
 
-
-class MapFormatError(ValueError):
-    """The colliders file does not have the expected header or columns."""
+__all__ = ["CELL_M", "SEARCH_CAP_M", "Box", "CityMap", "MapFormatError", "write_colliders"]
 
 
 @dataclass(frozen=True)
@@ -81,40 +82,86 @@ class CityMap:
         self.hi = boxes[:, 0:3] + boxes[:, 3:6]
         self._cells: dict[tuple[int, int], np.ndarray] = {}
         buckets: dict[tuple[int, int], list[int]] = {}
+        big: list[int] = []
         for i in range(len(boxes)):
             n0, e0 = self._cell(self.lo[i, 0], self.lo[i, 1])
             n1, e1 = self._cell(self.hi[i, 0], self.hi[i, 1])
+            if (n1 - n0 + 1) * (e1 - e0 + 1) > MAX_CELLS_PER_BOX:
+                big.append(i)
+                continue
             for cn in range(n0, n1 + 1):
                 for ce in range(e0, e1 + 1):
                     buckets.setdefault((cn, ce), []).append(i)
         self._cells = {k: np.array(v, dtype=np.intp) for k, v in buckets.items()}
+        self._big = np.array(big, dtype=np.intp)
         self._empty = np.zeros(0, dtype=np.intp)
 
     # ------------------------------------------------------------------ loading
     @classmethod
     def from_csv(cls, path: str | Path) -> CityMap:
-        """Read a ``colliders.csv`` map.
+        """Read and validate a ``colliders.csv`` map (rules: :mod:`sim.mapfile`).
 
         Raises
         ------
         MapFormatError
-            If the first line is not ``lat0 <deg>, lon0 <deg>`` or the rows do not have 6 columns.
-        FileNotFoundError
-            If ``path`` does not exist.
+            One line naming the file, the line and why.
+        OSError
+            If the file cannot be read.
         """
-        path = Path(path)
-        with path.open() as f:
-            first = f.readline()
-        match = _HEADER_RE.search(first)
-        if match is None:
-            raise MapFormatError(f"{path}: first line {first.strip()!r} is not 'lat0 <deg>, lon0 <deg>'")
-        data = np.loadtxt(path, delimiter=",", skiprows=2, dtype=float, ndmin=2)
-        if data.size == 0:
-            data = np.zeros((0, 6))
-        if data.shape[1] != 6:
-            raise MapFormatError(f"{path}: expected 6 columns, found {data.shape[1]}")
+        lat0, lon0, data = read_colliders(path)
         log.info("loaded %d boxes from %s", len(data), path)
-        return cls(float(match.group(1)), float(match.group(2)), data)
+        return cls(lat0, lon0, data)
+
+    def extent(self) -> tuple[float, float, float, float]:
+        """``(north_min, north_max, east_min, east_max)`` of all footprints and home (m)."""
+        if len(self.boxes) == 0:
+            return 0.0, 0.0, 0.0, 0.0
+        return (min(0.0, float(self.lo[:, 0].min())), max(0.0, float(self.hi[:, 0].max())),
+                min(0.0, float(self.lo[:, 1].min())), max(0.0, float(self.hi[:, 1].max())))
+
+    def boot_point(self, start: tuple | None, radius_m: float, margin_m: float) -> np.ndarray:
+        """Where a vehicle booting at ``start`` rests (map ``north, east, up``; see ``SimConfig.start``).
+
+        Raises
+        ------
+        ValueError
+            If the point lies more than ``margin_m`` outside the map's extent, or inside a building.
+        """
+        if start is None:
+            n, e, alt = 0.0, 0.0, 0.0
+        else:
+            n, e, _ = self.geodetic_to_map(start[0], start[1], 0.0)
+            alt = start[2] if len(start) == 3 else 0.0
+        n0, n1, e0, e1 = self.extent()
+        if not (n0 - margin_m <= n <= n1 + margin_m and e0 - margin_m <= e <= e1 + margin_m):
+            raise ValueError(f"start {start[0]:.6f},{start[1]:.6f} is off the map: N {n:.0f} m, E {e:.0f} m from "
+                             f"home; the map spans N {n0:.0f}..{n1:.0f} m, E {e0:.0f}..{e1:.0f} m "
+                             f"(plus {margin_m:g} m)")
+        point = np.array([n, e, self.ground_up_m(n, e, alt, radius_m)])
+        inside = self.box_containing(point, radius_m)
+        if inside >= 0:
+            b = self.box(inside)
+            where = "" if start is None else f"{start[0]:.6f},{start[1]:.6f} "
+            raise ValueError(
+                f"start {where}(N {n:.1f} m, E {e:.1f} m, up {point[2]:.1f} m) is inside box "
+                f"{inside + 1} of the map (N {b.north_m - b.half_north_m:.1f}..{b.north_m + b.half_north_m:.1f} m, "
+                f"E {b.east_m - b.half_east_m:.1f}..{b.east_m + b.half_east_m:.1f} m, "
+                f"up {b.up_m - b.half_up_m:.1f}..{b.up_m + b.half_up_m:.1f} m); give LAT,LON,ALT with the roof's "
+                "altitude to start on it")
+        return point
+
+    def box_containing(self, point_neu, radius_m: float = 0.0) -> int:
+        """Row of a box that a sphere of ``radius_m`` resting on ``point_neu`` intersects, else -1."""
+        centre = np.asarray(point_neu, dtype=float) + np.array([0.0, 0.0, radius_m])
+        idx = self.candidates(centre[0], centre[1], radius_m)
+        if idx.size == 0:
+            return -1
+        lo, hi = self.lo[idx], self.hi[idx]
+        gap = np.maximum(np.maximum(lo - centre, centre - hi), 0.0)
+        distance = np.sqrt(np.einsum("ij,ij->i", gap, gap))
+        strictly_inside = np.all((lo < centre) & (centre < hi), axis=1)
+        hit = strictly_inside | (distance < radius_m - 1e-9)
+        return int(idx[np.argmax(hit)]) if hit.any() else -1
 
     # ------------------------------------------------------------------ frames
     def geodetic_to_map(self, lat_deg: float, lon_deg: float, alt_m: float) -> tuple[float, float, float]:
@@ -146,6 +193,8 @@ class CityMap:
             for ce in range(e0, e1 + 1)
             if (cn, ce) in self._cells
         ]
+        if self._big.size:
+            parts.append(self._big)
         if not parts:
             return self._empty
         return parts[0] if len(parts) == 1 else np.concatenate(parts)

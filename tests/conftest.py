@@ -43,6 +43,7 @@ class SimClient:
         self.messages: list = []
         self.cond = threading.Condition()
         self._stop = threading.Event()
+        self._heartbeat_stop: threading.Event | None = None
         self._send_lock = threading.Lock()
         self.thread = threading.Thread(target=self._read, daemon=True)
         self.thread.start()
@@ -107,6 +108,15 @@ class SimClient:
         self.send(mavlink.MAVLink_command_long_message(target[0], target[1], command, 0, *p))
         return self.wait_for("COMMAND_ACK", lambda m: m.command == command, timeout_s, since)
 
+    def arm(self, timeout_s: float = 10.0):
+        """Ask to arm until the autopilot accepts (it refuses while it boots); return the last COMMAND_ACK."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            ack = self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+            if ack.result == mavlink.MAV_RESULT_ACCEPTED or time.monotonic() > deadline:
+                return ack
+            time.sleep(0.05)
+
     def set_mode_px4(self, main: int, sub: int = 0):
         return self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
 
@@ -118,13 +128,45 @@ class SimClient:
             0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, type_mask, north, east, z, 0, 0, 0, 0, 0, 0,
             yaw if math.isfinite(yaw) else 0.0, 0))
 
+    def start_heartbeats(self, hz: float, mav_type: int = mavlink.MAV_TYPE_GCS) -> None:
+        """Send HEARTBEATs (as a ground station by default) at ``hz`` (wall clock) until :meth:`stop_heartbeats`."""
+        self.stop_heartbeats()
+        stop = self._heartbeat_stop = threading.Event()
+
+        def run() -> None:
+            while not stop.is_set():
+                try:
+                    self.send(mavlink.MAVLink_heartbeat_message(mav_type, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+                except OSError:  # the socket closed under us
+                    return
+                stop.wait(1.0 / hz)
+
+        threading.Thread(target=run, daemon=True).start()
+
+    def stop_heartbeats(self) -> None:
+        if self._heartbeat_stop is not None:
+            self._heartbeat_stop.set()
+            self._heartbeat_stop = None
+
     def close(self) -> None:
+        self.stop_heartbeats()
         self._stop.set()
         try:
             self.sock.close()
         except OSError:
             pass
         self.thread.join(2)
+
+
+def wait_sim(sim, seconds: float, timeout_s: float = 20.0) -> dict:
+    """Wait until ``seconds`` of simulated time have passed (however slow the machine is)."""
+    until = sim.truth()["sim_time_s"] + seconds
+    return sim.wait_until(lambda s: s["sim_time_s"] >= until, timeout_s)
+
+
+def wait_ready(sim, timeout_s: float = 10.0) -> dict:
+    """Wait until the simulated vehicle has booted far enough to arm (its pre-arm checks pass)."""
+    return sim.wait_until(lambda s: s["ready"], timeout_s)
 
 
 @pytest.fixture
@@ -156,12 +198,19 @@ def sim_start(sim_map):
 
 @pytest.fixture
 def sim_connect():
-    """``sim_connect(port) -> SimClient``; all closed at teardown."""
+    """``sim_connect(sim_or_port, gcs=True) -> SimClient``; all closed at teardown.
+
+    Given a :class:`Simulator`, the client heartbeats as a ground station once per simulated second (PX4 sends
+    STATUSTEXT only to a link it has a ground station's heartbeat on); given a port, it sends none.
+    """
     clients = []
 
-    def connect(port: int, **kwargs) -> SimClient:
+    def connect(target, gcs: bool = True, **kwargs) -> SimClient:
+        port = target if isinstance(target, int) else target.port
         c = SimClient(port, **kwargs)
         clients.append(c)
+        if gcs and not isinstance(target, int):
+            c.start_heartbeats(min(50.0, target.config.speedup))
         return c
 
     yield connect

@@ -71,9 +71,9 @@ def test_classic_motion_planning_send_waypoints_then_takeoff(sim_start, sim_conn
     after junk whose fake header announces 255 payload bytes is answered at once, not held back.
     """
     sim = sim_start(speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
-    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # arm()
+    assert c.arm().result == M.MAV_RESULT_ACCEPTED  # arm(), once the vehicle has booted
     assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_ACCEPTED  # take_control()
     assert c.command(M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 37.792480, -122.397450, 0).result == 0
     takeoff_mask = 0x1000 | 0x800 | 0x400 | 0x1C0 | 0x038

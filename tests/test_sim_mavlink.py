@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import contextlib
 import math
+import statistics
 import threading
 import time
 
 import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
+
+from tests.conftest import wait_ready, wait_sim
 
 M = mavlink
 PX4_MAIN_AUTO, PX4_MAIN_OFFBOARD, PX4_SUB_LOITER = 4, 6, 3
@@ -38,54 +41,49 @@ def streaming(client, target, hz: float = 20.0):
         thread.join(2)
 
 
-def test_identity_first_messages_and_ground_truth(sim_start, sim_connect):
+def test_px4_identity_and_default_streams_after_boot(sim_start, sim_connect):
     sim = sim_start()
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     hb = c.wait_for("HEARTBEAT", timeout_s=3)
-    first = [m.get_type() for m in c.messages[: c.messages.index(hb)]]
-    assert {"HOME_POSITION", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"} <= set(first)
     assert (hb.get_srcSystem(), hb.get_srcComponent()) == (1, 1)
     assert hb.get_msgbuf()[0] == 0xFD  # MAVLink 2 framing
     assert hb.type == M.MAV_TYPE_QUADROTOR and hb.autopilot == M.MAV_AUTOPILOT_PX4
-    assert hb.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-    assert not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
+    assert hb.base_mode == 29  # as PX4 SITL in Hold: custom, auto, guided, stabilize
     assert px4_mode_name(hb) == "LOITER"
     assert (hb.custom_mode >> 16) & 0xFF == PX4_MAIN_AUTO and (hb.custom_mode >> 24) == PX4_SUB_LOITER
-    lpn = c.wait_for("LOCAL_POSITION_NED")
+    wait_ready(sim)
+    since = c.mark()
+    lpn = c.wait_for("LOCAL_POSITION_NED", since=since)
     assert (lpn.x, lpn.y, lpn.z) == (0.0, 0.0, 0.0)
-    gpi = c.wait_for("GLOBAL_POSITION_INT")
-    home = c.wait_for("HOME_POSITION")
+    gpi = c.wait_for("GLOBAL_POSITION_INT", since=since)
+    home = c.wait_for("HOME_POSITION", since=since)
     assert gpi.alt == home.altitude == 0 and gpi.relative_alt == 0
     assert (gpi.lat, gpi.lon) == (home.latitude, home.longitude) == (377924800, -1223974500)
-    ss = c.wait_for("SYS_STATUS")
+    ss = c.wait_for("SYS_STATUS", since=since)
     for bit in (M.MAV_SYS_STATUS_SENSOR_GPS, M.MAV_SYS_STATUS_PREARM_CHECK, M.MAV_SYS_STATUS_SENSOR_3D_GYRO):
         assert ss.onboard_control_sensors_present & bit and ss.onboard_control_sensors_health & bit
-    for kind in ("ATTITUDE", "GPS_RAW_INT", "EXTENDED_SYS_STATE"):
-        c.wait_for(kind)
-    assert c.wait_for("EXTENDED_SYS_STATE").landed_state == M.MAV_LANDED_STATE_ON_GROUND
-    assert c.wait_for("GPS_RAW_INT").fix_type >= M.GPS_FIX_TYPE_3D_FIX
+    for kind in ("ATTITUDE", "ATTITUDE_QUATERNION", "GPS_RAW_INT", "EXTENDED_SYS_STATE", "VFR_HUD", "SYSTEM_TIME"):
+        c.wait_for(kind, since=since)
+    assert c.wait_for("EXTENDED_SYS_STATE", since=since).landed_state == M.MAV_LANDED_STATE_ON_GROUND
+    assert c.wait_for("GPS_RAW_INT", since=since).fix_type == M.GPS_FIX_TYPE_3D_FIX
 
 
-def test_every_command_acked_and_unknown_unsupported(sim_start, sim_connect):
+def test_every_command_acked_to_its_sender_and_unknown_unsupported(sim_start, sim_connect):
     sim = sim_start()
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     expected = {
         M.MAV_CMD_REQUEST_MESSAGE: ((M.MAVLINK_MSG_ID_AUTOPILOT_VERSION,), M.MAV_RESULT_ACCEPTED),
-        M.MAV_CMD_NAV_TAKEOFF: ((0, 0, 0, math.nan, math.nan, math.nan, math.nan), M.MAV_RESULT_DENIED),
-        M.MAV_CMD_DO_SET_HOME: ((0, 0, 0, 0, 0.0, 0.0, 0.0), M.MAV_RESULT_DENIED),
         M.MAV_CMD_NAV_LOITER_TIME: ((10,), M.MAV_RESULT_UNSUPPORTED),
         31999: ((1, 2, 3), M.MAV_RESULT_UNSUPPORTED),
-        M.MAV_CMD_DO_SET_MODE: ((1, 4, 4), M.MAV_RESULT_DENIED),  # AUTO.MISSION: no mission support
+        M.MAV_CMD_DO_SET_MODE: ((1, 4, 7), M.MAV_RESULT_DENIED),  # AUTO.RTGS: not in the sim
     }
     since = c.mark()
     for command, (params, result) in expected.items():
         ack = c.command(command, *params)
         assert ack.result == result, (command, ack.result)
         assert (ack.target_system, ack.target_component) == (255, 190)
-    # Denials carry a reason in STATUSTEXT.
-    texts = [m.text for m in c.of_type("STATUSTEXT", since)]
-    assert any("not armed" in t for t in texts) and any("0,0" in t for t in texts)
+        assert (ack.progress, ack.result_param2) == (0, 0)
     c.wait_for("AUTOPILOT_VERSION", since=since)
     # COMMAND_INT is acked too.
     since = c.mark()
@@ -97,15 +95,14 @@ def test_every_command_acked_and_unknown_unsupported(sim_start, sim_connect):
     assert (4242, M.MAV_RESULT_UNSUPPORTED) in logged
 
 
-def test_params_ping_intervals(sim_start, sim_connect):
-    sim = sim_start(speedup=1.0)
-    c = sim_connect(sim.port)
+def test_params_ping_and_message_intervals_in_simulated_time(sim_start, sim_connect):
+    sim = sim_start(speedup=2.0)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     since = c.mark()
     c.send(M.MAVLink_param_request_list_message(1, 1))
-    values = {c.wait_for("PARAM_VALUE", lambda m, name=name: m.param_id == name, since=since).param_id
-              for name in ("MIS_TAKEOFF_ALT", "RTL_RETURN_ALT", "COM_OF_LOSS_T")}
-    assert len(values) == 3
+    for name in ("MIS_TAKEOFF_ALT", "RTL_RETURN_ALT", "COM_OF_LOSS_T"):
+        c.wait_for("PARAM_VALUE", lambda m, name=name: m.param_id == name, since=since)
     since = c.mark()
     c.send(M.MAVLink_param_set_message(1, 1, b"MIS_TAKEOFF_ALT", 7.5, M.MAV_PARAM_TYPE_REAL32))
     assert c.wait_for("PARAM_VALUE", lambda m: m.param_id == "MIS_TAKEOFF_ALT", since=since).param_value == 7.5
@@ -116,25 +113,31 @@ def test_params_ping_intervals(sim_start, sim_connect):
     c.send(M.MAVLink_ping_message(123456, 7, 0, 0))
     pong = c.wait_for("PING", since=since)
     assert (pong.seq, pong.time_usec, pong.target_system, pong.target_component) == (7, 123456, 255, 190)
-    # SET_MESSAGE_INTERVAL: GPS_RAW_INT at 20 Hz wall clock, then off.
+    # SET_MESSAGE_INTERVAL: GPS_RAW_INT (8 Hz by default on PX4) at 20 Hz of simulated time, then off.
     assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_GPS_RAW_INT, 50_000).result == 0
-    time.sleep(0.05)
+    wait_ready(sim)
     since = c.mark()
-    time.sleep(0.5)
-    assert 6 <= len(c.of_type("GPS_RAW_INT", since)) <= 14
+    time.sleep(0.4)
+    stamps = [m.time_usec for m in c.of_type("GPS_RAW_INT", since)]
+    gaps_s = [(b - a) / 1e6 for a, b in zip(stamps, stamps[1:])]
+    # Under CPU load a late loop turn coalesces what fell due meanwhile: the typical gap is the interval.
+    assert len(gaps_s) >= 5 and statistics.median(gaps_s) == pytest.approx(0.05, abs=0.021), gaps_s
     assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_GPS_RAW_INT, -1).result == 0
-    time.sleep(0.05)
+    time.sleep(0.1)
     since = c.mark()
     time.sleep(0.6)
     assert c.of_type("GPS_RAW_INT", since) == []
+    assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_GPS_RAW_INT, 0).result == 0  # default
+    c.wait_for("GPS_RAW_INT", since=c.mark(), timeout_s=2)
     assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_HOME_POSITION).result == 0
-    assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 1000).result == M.MAV_RESULT_UNSUPPORTED
+    assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 1000).result == M.MAV_RESULT_FAILED  # as PX4
 
 
 def test_set_home_moves_local_origin(sim_start, sim_connect):
     sim = sim_start(origin="home")
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
+    wait_ready(sim)
     # 0.0001 deg of latitude north of the map origin is ~11.1 m; the vehicle is at the origin.
     since = c.mark()
     ack = c.command(M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 37.792580, -122.397450, 0.0)
@@ -146,29 +149,38 @@ def test_set_home_moves_local_origin(sim_start, sim_connect):
 
 
 @pytest.mark.parametrize("origin", ["home", "boot"])
-def test_start_position_and_origin(sim_start, sim_connect, origin):
+def test_home_and_origin_are_where_the_vehicle_boots(sim_start, sim_connect, origin):
     # Start 20 m east of the map origin (~0.000227 deg of longitude at 37.79 N).
     sim = sim_start(start=(37.792480, -122.397223), origin=origin)
-    c = sim_connect(sim.port)
-    lpn = c.wait_for("LOCAL_POSITION_NED")
-    home = c.wait_for("HOME_POSITION")
-    assert home.latitude == 377924800 and home.longitude == -1223974500  # home stays at lat0/lon0
+    c = sim_connect(sim)
+    wait_ready(sim)
+    since = c.mark()
+    home = c.wait_for("HOME_POSITION", since=since)
+    lpn = c.wait_for("LOCAL_POSITION_NED", since=since)
+    assert home.latitude == 377924800 and abs(home.longitude + 1223972230) <= 1  # home is the boot position
+    assert (lpn.x, lpn.y, lpn.z) == (0.0, 0.0, 0.0) and (home.x, home.y) == (0.0, 0.0)
+    # Move home to the map origin: the "home" local frame moves with it, the EKF origin ("boot") does not.
+    assert c.command(M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 37.792480, -122.397450, 0.0).result == 0
+    since = c.mark()
+    home = c.wait_for("HOME_POSITION", since=since)
+    lpn = c.wait_for("LOCAL_POSITION_NED", since=since)
+    # COMMAND_LONG params are float32: -122.39745 arrives ~4e-6 deg (0.35 m) off.
     if origin == "home":
-        assert lpn.y == pytest.approx(20.0, abs=0.1) and lpn.x == pytest.approx(0.0, abs=0.01)
+        assert lpn.y == pytest.approx(20.0, abs=0.5) and lpn.x == pytest.approx(0.0, abs=0.5)
     else:
         assert (lpn.x, lpn.y, lpn.z) == (0.0, 0.0, 0.0)
-        assert home.y == pytest.approx(-20.0, abs=0.1)
+        assert home.y == pytest.approx(-20.0, abs=0.5)
 
 
 @pytest.mark.flight
 def test_classic_udacidrone_dialect(sim_start, sim_connect):
     """The udacidrone PX4=False sequence: offboard + arm before any setpoint, z as positive altitude."""
     sim = sim_start(speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     assert c.command(M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 37.792480, -122.397450, 0).result == 0
     assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_ACCEPTED  # take_control()
-    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    assert c.arm().result == M.MAV_RESULT_ACCEPTED
     hb = c.wait_for("HEARTBEAT", lambda m: m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, since=c.mark())
     assert (hb.custom_mode >> 16) & 0xF == 6  # udacidrone's "guided" test
     takeoff_mask = 0x1000 | 0x800 | 0x400 | 0x1C0 | 0x038
@@ -192,17 +204,30 @@ def test_classic_udacidrone_dialect(sim_start, sim_connect):
     assert any(e["kind"] == "dialect" for e in report["events"])
 
 
-def test_strict_refuses_offboard_without_stream_and_ignores_classic_bits(sim_start, sim_connect):
-    sim = sim_start(strict=True, speedup=20.0)
-    c = sim_connect(sim.port)
+def test_strict_offboard_rules_are_px4s_and_classic_bits_are_ignored(sim_start, sim_connect):
+    """PX4 1.15 SITL: OFFBOARD is accepted while disarmed even without setpoints, but arming in it is refused
+    (TEMPORARILY_REJECTED, "Arming denied: ..."); armed, switching to OFFBOARD without setpoints is refused.
+
+    Speed-up 5: a 20 Hz stream is 4 Hz of simulated time, above PX4's 2 Hz (COM_OF_LOSS_T = 1 s simulated).
+    """
+    sim = sim_start(strict=True, speedup=5.0)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
+    wait_ready(sim)
+    assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_ACCEPTED
     since = c.mark()
-    assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_DENIED
-    assert any("setpoint" in m.text for m in c.of_type("STATUSTEXT", since))
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_TEMPORARILY_REJECTED
+    chunks = [m for m in c.of_type("STATUSTEXT", since) if m.id != 0]  # the chunked one
+    assert "".join(m.text for m in chunks) == "Arming denied: Resolve system health failures first\t"
+    assert [m.chunk_seq for m in chunks] == [0, 1] and chunks[0].id == chunks[1].id != 0  # 50-byte chunks
+    assert c.set_mode_px4(PX4_MAIN_AUTO, PX4_SUB_LOITER).result == 0
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # Hold arms
+    since = c.mark()
+    assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_TEMPORARILY_REJECTED
+    assert any("Switching to Offboard is currently not available" in m.text for m in c.of_type("STATUSTEXT", since))
     with streaming(c, lambda: (0.0, 0.0, 5.0)):  # classic-style positive z: NED 5 m *below* ground
         time.sleep(0.1)
         assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_ACCEPTED
-        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
         time.sleep(0.3)
         assert sim.truth()["on_ground"]  # a positive z never lifts off in strict mode
         c.setpoint_local(0.0, 0.0, 5.0, type_mask=0x1000 | 0xDF8)
@@ -213,25 +238,38 @@ def test_strict_refuses_offboard_without_stream_and_ignores_classic_bits(sim_sta
 
 
 @pytest.mark.flight
-def test_strict_offboard_loss_falls_back_to_hold(sim_start, sim_connect):
-    sim = sim_start(strict=True, speedup=20.0)
-    c = sim_connect(sim.port)
+@pytest.mark.parametrize("action, mode, sinks", [(None, "POSCTL", True), (5, "LOITER", False), (4, "LAND", True)])
+def test_strict_offboard_loss_after_com_of_loss_t_takes_com_obl_rc_act(sim_start, sim_connect, action, mode, sinks):
+    """Measured on PX4 1.15 SITL: 1.0 s after the last setpoint "Failsafe activated" and COM_OBL_RC_ACT; the
+    default (0, Position) without RC sinks to the ground; Position and Hold go back to OFFBOARD when setpoints
+    return, Land does not."""
+    params = {} if action is None else {"COM_OBL_RC_ACT": action}
+    sim = sim_start(strict=True, speedup=5.0, params=params)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
+    wait_ready(sim)
     with streaming(c, lambda: (0.0, 0.0, -5.0)):
         time.sleep(0.1)
         assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == 0
-        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
-        sim.wait_until(lambda s: s["position"]["up_m"] > 4.5, 10)
+        assert c.arm().result == 0
+        sim.wait_until(lambda s: s["position"]["up_m"] > 4.9, 10)
         since = c.mark()
-    t_stop = time.monotonic()
-    state = sim.wait_until(lambda s: s["mode"] == "LOITER", 3)
-    elapsed = time.monotonic() - t_stop
-    assert 0.4 < elapsed < 1.5  # COM_OF_LOSS_T = 0.5 s wall clock
-    assert not state["on_ground"] and state["armed"]
-    assert any("offboard" in m.text for m in c.of_type("STATUSTEXT", since))
+    state = sim.wait_until(lambda s: s["mode"] == mode, 5)
+    report = sim.report()
+    failsafe = [e["sim_time_s"] for e in report["events"] if e["kind"] == "failsafe"][-1]
+    assert failsafe - report["last_setpoint_sim_time_s"] == pytest.approx(1.0, abs=0.021)  # COM_OF_LOSS_T
+    c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", since=since)
+    assert state["armed"] and not state["on_ground"]
+    up = state["position"]["up_m"]
+    wait_sim(sim, 2.0)
+    assert (sim.truth()["position"]["up_m"] < up - 1.0) == sinks
+    with streaming(c, lambda: (0.0, 0.0, -5.0)):
+        back = wait_sim(sim, 2.0)["mode"]
+    assert (back == "OFFBOARD") == (mode != "LAND"), back
 
 
 def _offboard_takeoff(c, sim, altitude_m: float = 5.0) -> None:
+    wait_ready(sim)
     c.setpoint_local(0.0, 0.0, -altitude_m)
     assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == 0
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
@@ -241,7 +279,7 @@ def _offboard_takeoff(c, sim, altitude_m: float = 5.0) -> None:
 @pytest.mark.flight
 def test_flying_through_a_building_is_a_collision(sim_start, sim_connect):
     sim = sim_start(speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _offboard_takeoff(c, sim)
     since = c.mark()
@@ -262,7 +300,7 @@ def test_flying_through_a_building_is_a_collision(sim_start, sim_connect):
 @pytest.mark.flight
 def test_flying_around_a_building_reports_clearance(sim_start, sim_connect, tmp_path):
     sim = sim_start(speedup=20.0, report_path=tmp_path / "report.json")
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _offboard_takeoff(c, sim)
     c.setpoint_local(0.0, 15.0, -5.0)
@@ -284,37 +322,45 @@ def test_flying_around_a_building_reports_clearance(sim_start, sim_connect, tmp_
 @pytest.mark.flight
 def test_ardupilot_personality(sim_start, sim_connect):
     sim = sim_start(autopilot="ardupilot", speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     hb = c.wait_for("HEARTBEAT")
     assert hb.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA and hb.type == M.MAV_TYPE_QUADROTOR
     acm = {v: k for k, v in mavutil.mode_mapping_acm.items()}
-    assert hb.custom_mode == acm["STABILIZE"]
+    assert hb.custom_mode == acm["STABILIZE"] and hb.base_mode == 81
+    wait_ready(sim)
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
-    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10).result == M.MAV_RESULT_DENIED  # not GUIDED
+    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10).result == M.MAV_RESULT_FAILED  # STABILIZE
     assert c.command(M.MAV_CMD_DO_SET_MODE, 1, acm["GUIDED"]).result == 0
-    c.wait_for("HEARTBEAT", lambda m: m.custom_mode == acm["GUIDED"], since=c.mark())
+    c.wait_for("HEARTBEAT", lambda m: m.custom_mode == acm["GUIDED"] and m.base_mode == 89 + 128, since=c.mark())
     c.setpoint_local(10.0, 0.0, -10.0)  # ignored on the ground, as ArduCopter does
     time.sleep(0.2)
     assert sim.truth()["on_ground"]
     assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10).result == 0  # param7 relative (m)
     sim.wait_until(lambda s: abs(s["position"]["up_m"] - 10) < 0.1, 10)
+    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 20).result == M.MAV_RESULT_FAILED  # flying
     c.setpoint_local(10.0, 0.0, -10.0)
     sim.wait_until(lambda s: abs(s["position"]["north_m"] - 10) < 0.05, 10)
     since = c.mark()
     c.send(M.MAVLink_set_mode_message(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, acm["LAND"]))
-    assert c.wait_for("COMMAND_ACK", lambda m: m.command == M.MAVLINK_MSG_ID_SET_MODE, since=since).result == 0
     c.wait_for("HEARTBEAT", lambda m: m.custom_mode == acm["LAND"], since=since)
+    assert c.of_type("COMMAND_ACK", since) == []  # ArduCopter 4.7 does not ack SET_MODE
     sim.wait_until(lambda s: s["on_ground"] and not s["armed"], 30)
-    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, acm["AUTO"]).result == M.MAV_RESULT_DENIED
+    texts = [m.text for m in c.of_type("STATUSTEXT", since)]
+    assert "Disarming motors" in texts
+    since = c.mark()
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_FAILED  # still in LAND
+    refusals = [m.text for m in c.of_type("STATUSTEXT", since) if m.text.startswith("Arm")]
+    assert refusals == ["Arm: LAND mode not armable"]
+    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, acm["CIRCLE"]).result == M.MAV_RESULT_FAILED  # not in the sim
     assert sim.report()["landed"]["north_m"] == pytest.approx(10.0, abs=0.1)
 
 
 def test_tlog_is_readable_by_pymavlink(sim_start, sim_connect, tmp_path):
     path = tmp_path / "flight.tlog"
     sim = sim_start(tlog_path=path)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
-    c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    c.arm()
     time.sleep(1.1)
     sim.stop()
     log = mavutil.mavlink_connection(str(path))

@@ -9,11 +9,14 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from tests.conftest import wait_ready
+
 M = mavlink
 SF_MAP = Path("/work/shared/maps/udacity_sf_colliders.csv")
 
 
 def _takeoff_offboard(c, sim, north=0.0, east=0.0, altitude_m=5.0):
+    wait_ready(sim)
     c.setpoint_local(north, east, -altitude_m)
     assert c.set_mode_px4(6).result == 0
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
@@ -22,11 +25,12 @@ def _takeoff_offboard(c, sim, north=0.0, east=0.0, altitude_m=5.0):
 
 def test_two_clients_each_get_telemetry_and_their_own_acks(sim_start, sim_connect):
     sim = sim_start()
-    gcs = sim_connect(sim.port, system=255, component=190)
-    mission = sim_connect(sim.port, system=254, component=191)
+    gcs = sim_connect(sim, system=255, component=190)
+    mission = sim_connect(sim, system=254, component=191)
     gcs.wait_for("HEARTBEAT")
     mission.wait_for("HEARTBEAT")
     assert sim.clients() == 2
+    wait_ready(sim)
     since = gcs.mark()
     ack = mission.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     assert (ack.result, ack.target_system) == (M.MAV_RESULT_ACCEPTED, 254)
@@ -37,7 +41,7 @@ def test_two_clients_each_get_telemetry_and_their_own_acks(sim_start, sim_connec
 @pytest.mark.flight
 def test_rtl_returns_home_and_lands(sim_start, sim_connect):
     sim = sim_start(speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     since = c.mark()
     c.send(M.MAVLink_param_set_message(1, 1, b"RTL_RETURN_ALT", 8.0, M.MAV_PARAM_TYPE_REAL32))
@@ -47,7 +51,9 @@ def test_rtl_returns_home_and_lands(sim_start, sim_connect):
     sim.wait_until(lambda s: abs(s["position"]["north_m"] + 20) < 0.05, 10)
     assert c.command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH).result == 0
     state = sim.wait_until(lambda s: s["on_ground"] and not s["armed"], 30)
-    assert state["mode"] == "RTL"
+    # Disarmed after the landing, PX4 goes back to the last mode the user chose that allows arming.
+    assert state["mode"] == "OFFBOARD"
+    assert [e["text"] for e in sim.report()["events"] if e["kind"] == "mode"][-2:] == ["mode RTL", "mode OFFBOARD"]
     report = sim.report()
     assert report["max_altitude_m"] == pytest.approx(8.0, abs=0.15)  # climbed to RTL_RETURN_ALT first
     assert (report["landed"]["north_m"], report["landed"]["east_m"]) == pytest.approx((0.0, 0.0), abs=0.1)
@@ -56,7 +62,7 @@ def test_rtl_returns_home_and_lands(sim_start, sim_connect):
 @pytest.mark.flight
 def test_wind_pushes_but_the_controller_holds(sim_start, sim_connect):
     sim = sim_start(speedup=20.0, wind_m_s=(0.0, 5.0))
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _takeoff_offboard(c, sim, altitude_m=5.0)
     time.sleep(0.5)  # 10 s simulated hover
@@ -67,7 +73,7 @@ def test_wind_pushes_but_the_controller_holds(sim_start, sim_connect):
 
 def test_gps_noise_moves_reports_not_truth(sim_start, sim_connect):
     sim = sim_start(gps_noise_m=2.0, seed=7)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     time.sleep(1.0)
     xs = [m.x for m in c.of_type("LOCAL_POSITION_NED")]
@@ -82,7 +88,7 @@ def test_gps_noise_moves_reports_not_truth(sim_start, sim_connect):
 def test_sf_map_flight_keeps_up_with_speedup(sim_start, sim_connect):
     """3845 boxes: the per-step truth check must not slow the simulation down."""
     sim = sim_start(map_path=SF_MAP, speedup=20.0)
-    c = sim_connect(sim.port)
+    c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _takeoff_offboard(c, sim, altitude_m=120.0)  # above the tallest building (106 m)
     c.setpoint_local(150.0, 150.0, -120.0)

@@ -123,8 +123,11 @@ def test_px4_modes_decode_with_pymavlink():
         assert mavutil.interpret_px4_mode(mode.base_flags, mode.custom_mode) == name
     assert px4.decode_set_mode(1, 6, 0)[0].behaviour == Behaviour.OFFBOARD
     assert px4.decode_set_mode(1, 4, 6)[0].name == "LAND"
-    assert px4.decode_set_mode(1, 4, 4)[0] is None  # MISSION refused
-    assert px4.decode_set_mode(0, 6, 0)[0] is None  # custom mode flag required
+    mission = px4.decode_set_mode(1, 4, 4)[0]  # MISSION: selectable, but no mission to arm for
+    assert mission.name == "MISSION" and not mission.armable
+    assert px4.decode_set_mode(1, 4, 7)[0] is None  # RTGS: not in the sim
+    # PX4 without RC cannot arm in its manual modes, nor in the modes that prevent arming.
+    assert {name for name, m in px4.modes.items() if m.armable} == {"LOITER", "TAKEOFF", "OFFBOARD"}
 
 
 def test_ardupilot_modes_use_pymavlink_numbers():
@@ -132,6 +135,13 @@ def test_ardupilot_modes_use_pymavlink_numbers():
     for number, mode in apm.by_custom.items():
         assert mavutil.mode_mapping_acm[number] == mode.name
     assert apm.by_custom[4].name == "GUIDED" and apm.by_custom[9].name == "LAND" and apm.by_custom[6].name == "RTL"
+    # Refusal texts as ArduCopter SITL words them (its own mode names: SMARTRTL).
+    assert apm.modes["LAND"].arm_refusal == "Arm: LAND mode not armable"
+    assert apm.modes["SMART_RTL"].arm_refusal == "Arm: SMARTRTL mode not armable"
+    assert apm.modes["AUTO"].arm_refusal == "Arm: Mode requires mission"
+    assert apm.modes["GUIDED"].armable and apm.modes["STABILIZE"].armable
+    # base_mode as SITL reports it: STABILIZE 81, GUIDED 89 (GUIDED_ENABLED), both + 128 when armed.
+    assert (apm.modes["STABILIZE"].base_flags, apm.modes["GUIDED"].base_flags) == (81, 89)
 
 
 def test_command_names():
@@ -144,10 +154,13 @@ def test_command_names():
 def test_docstring_examples():
     import doctest
 
+    import sim.boot
     import sim.faults
+    import sim.mapfile
     import sim.modes
+    import sim.signing
     import sim.world
 
-    for module in (sim.world, sim.modes, sim.faults):
+    for module in (sim.world, sim.modes, sim.faults, sim.boot, sim.mapfile, sim.signing):
         result = doctest.testmod(module)
         assert result.failed == 0 and result.attempted > 0, module.__name__

@@ -1,0 +1,127 @@
+"""Failsafes when the client goes quiet: PX4's offboard loss and both autopilots' GCS heartbeat loss.
+
+All timers run in simulated seconds at the real parameter values (see ``scale_timeouts`` in sim/__init__.py).
+Measured on the real autopilots:
+
+PX4 offboard loss (``--strict``)
+    Armed in OFFBOARD with no setpoint for COM_OF_LOSS_T (1.0 s): "Failsafe activated", then COM_OBL_RC_ACT:
+    0 Position (default), 1 Altitude, 2 Manual -- without RC PX4 shows that mode and sinks at ~0.7 m/s
+    (MPC_LAND_SPEED) to the ground, where it lands and disarms; 3 Return; 4 Land; 5 Hold; 6 Terminate and
+    7 Disarm (the motors stop). For 0, 1, 2 and 5 the vehicle goes back to OFFBOARD by itself as soon as
+    setpoints arrive again; Return and Land stay until the user selects a mode.
+PX4 data link loss
+    No heartbeat from a ground station (HEARTBEAT type GCS) for COM_DL_LOSS_T (10 s): "Connection to ground
+    station lost", and "GCS connection regained" when one comes back; NAV_DLL_ACT (default 0: nothing) acts only
+    while armed: 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Disarm.
+ArduCopter GCS failsafe
+    No heartbeat from system MAV_GCS_SYSID (255) for FS_GCS_TIMEOUT (5 s) while armed and flying: with the default
+    FS_GCS_ENABLE = 0 nothing happens (SITL stayed GUIDED and armed at 10 m); otherwise "GCS Failsafe" and RTL
+    (1, 2, 3, 6), SMART_RTL (4) or LAND (5, 7); "GCS Failsafe Cleared" when heartbeats return (the mode stays).
+
+ArduCopter GUIDED's own timeout (a velocity target lasts GUID_TIMEOUT) is part of the setpoint, see
+:meth:`sim.autopilot.Autopilot.control_target`.
+"""
+
+from __future__ import annotations
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from .modes import Behaviour
+
+M = mavlink
+#: COM_OBL_RC_ACT -> (PX4 mode shown, goes back to OFFBOARD when setpoints return); None = motors stop.
+OFFBOARD_LOSS_ACTIONS: dict[int, tuple[str, bool] | None] = {
+    0: ("POSCTL", True), 1: ("ALTCTL", True), 2: ("MANUAL", True), 3: ("RTL", False), 4: ("LAND", False),
+    5: ("LOITER", True), 6: None, 7: None,
+}
+#: NAV_DLL_ACT -> PX4 mode; None = motors stop.
+PX4_DATALINK_ACTIONS: dict[int, str | None] = {1: "LOITER", 2: "RTL", 3: "LAND", 5: None, 6: None}
+#: FS_GCS_ENABLE -> ArduCopter mode.
+ARDUPILOT_GCS_ACTIONS = {1: "RTL", 2: "RTL", 3: "RTL", 4: "SMART_RTL", 5: "LAND", 6: "RTL", 7: "LAND"}
+
+
+class Failsafes:
+    """Link-loss failsafes of one vehicle; :meth:`step` runs after every physics step."""
+
+    def __init__(self, ap) -> None:
+        self.ap = ap
+        self.offboard_fallback: str | None = None  # the failsafe mode that gives way to OFFBOARD again
+        self.gcs_heartbeat_s: float | None = None
+        self.gcs_lost = False
+
+    # ------------------------------------------------------------------ inputs
+    def on_heartbeat(self, msg) -> None:
+        """Note a HEARTBEAT from a client if it counts as the ground station's."""
+        ap = self.ap
+        if ap.is_px4:
+            counts = msg.type == M.MAV_TYPE_GCS
+        else:
+            counts = msg.get_srcSystem() == int(ap.params["MAV_GCS_SYSID"])
+        if not counts:
+            return
+        self.gcs_heartbeat_s = ap.sim_time_s
+        ap.recorder.last_gcs_heartbeat_sim_time_s = round(ap.sim_time_s, 3)
+        if self.gcs_lost:
+            self.gcs_lost = False
+            text = "GCS connection regained\t" if ap.is_px4 else "GCS Failsafe Cleared"
+            ap.statustext(M.MAV_SEVERITY_INFO if ap.is_px4 else M.MAV_SEVERITY_WARNING, text)
+            ap.emit("failsafe", "ground station heartbeat back")
+
+    # ------------------------------------------------------------------ per step
+    def step(self) -> None:
+        ap = self.ap
+        if ap.is_px4 and ap.cfg.strict:
+            self._offboard()
+        self._gcs()
+
+    def _offboard(self) -> None:
+        ap = self.ap
+        if self.offboard_fallback is not None:
+            if ap.mode.name != self.offboard_fallback or not ap.armed:
+                self.offboard_fallback = None
+            elif ap.setpoint_fresh():
+                self.offboard_fallback = None
+                ap.enter_mode(ap.personality.modes["OFFBOARD"])
+                ap.emit("failsafe", "offboard setpoints back -> OFFBOARD")
+            return
+        if not (ap.armed and ap.mode.behaviour == Behaviour.OFFBOARD) or ap.setpoint_fresh():
+            return
+        action = int(ap.params["COM_OBL_RC_ACT"])
+        ap.statustext(M.MAV_SEVERITY_WARNING, "Failsafe activated\t")
+        outcome = OFFBOARD_LOSS_ACTIONS.get(action, OFFBOARD_LOSS_ACTIONS[0])
+        ap.emit("failsafe", f"offboard setpoints lost for COM_OF_LOSS_T -> COM_OBL_RC_ACT {action}")
+        if outcome is None:
+            ap.cut_motors("offboard loss: COM_OBL_RC_ACT terminate/disarm")
+            return
+        mode_name, restores = outcome
+        ap.enter_mode(ap.personality.modes[mode_name], user=False)
+        if restores:
+            self.offboard_fallback = mode_name
+
+    def _gcs(self) -> None:
+        ap = self.ap
+        if self.gcs_heartbeat_s is None or self.gcs_lost:
+            return
+        timeout = ap.params["COM_DL_LOSS_T"] if ap.is_px4 else ap.params["FS_GCS_TIMEOUT"]
+        if ap.sim_time_s - self.gcs_heartbeat_s < timeout:
+            return
+        if ap.is_px4:
+            self.gcs_lost = True
+            ap.statustext(M.MAV_SEVERITY_CRITICAL, "Connection to ground station lost\t")
+            ap.emit("failsafe", "no ground station heartbeat for COM_DL_LOSS_T")
+            action = int(ap.params["NAV_DLL_ACT"])
+            if ap.armed and action in PX4_DATALINK_ACTIONS:
+                mode_name = PX4_DATALINK_ACTIONS[action]
+                if mode_name is None:
+                    ap.cut_motors("data link loss: NAV_DLL_ACT terminate/disarm")
+                else:
+                    ap.enter_mode(ap.personality.modes[mode_name], user=False)
+            return
+        action = int(ap.params["FS_GCS_ENABLE"])
+        if action == 0 or not (ap.armed and ap.airborne):
+            return
+        self.gcs_lost = True
+        ap.statustext(M.MAV_SEVERITY_WARNING, "GCS Failsafe")
+        ap.emit("failsafe", f"no GCS heartbeat for FS_GCS_TIMEOUT -> FS_GCS_ENABLE {action}")
+        mode = ap.personality.modes[ARDUPILOT_GCS_ACTIONS.get(action, "RTL")]
+        ap.enter_mode(mode, user=False)

@@ -57,15 +57,16 @@ def sf_map() -> Path | None:
 
 
 def arducopter() -> Path | None:
-    """The ArduCopter SITL binary in the shared directory, or None."""
+    """The ArduCopter SITL binary in the shared directory (an executable file), or None."""
     path = shared_dir() / "sitl" / "arducopter"
-    return path if path.is_file() else None
+    return path if path.is_file() and os.access(path, os.X_OK) else None
 
 
 def px4_dir() -> Path | None:
     """PX4 SITL's directory (``bin/px4``, ``etc/``) in the shared directory, or None."""
     path = shared_dir() / "sitl" / "px4"
-    return path if (path / "bin" / "px4").is_file() else None
+    binary = path / "bin" / "px4"
+    return path if binary.is_file() and os.access(binary, os.X_OK) else None
 
 
 class Marks(list):

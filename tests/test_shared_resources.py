@@ -36,6 +36,25 @@ def test_the_sf_map_downloader_follows_the_same_rule(monkeypatch, tmp_path):
         assert sfmap.shared_dir() == shared.shared_dir()
 
 
+def test_the_sitl_helpers_find_the_autopilots_by_the_same_rule(monkeypatch, tmp_path):
+    from tests import sitl_support
+
+    fake = tmp_path / "fake-shared"
+    (fake / "sitl" / "px4" / "bin").mkdir(parents=True)
+    copter, px4 = fake / "sitl" / "arducopter", fake / "sitl" / "px4" / "bin" / "px4"
+    for binary in (copter, px4):
+        binary.write_text("#!/bin/sh\n")
+    monkeypatch.setenv("SKYROUTE_SHARED", str(fake))
+    assert sitl_support.arducopter_binary() is None and sitl_support.px4_binary() is None  # not executable
+    for binary in (copter, px4):
+        binary.chmod(0o755)
+    assert sitl_support.shared_dir() == shared.shared_dir() == fake
+    assert sitl_support.arducopter_binary() == copter == shared.arducopter()
+    assert sitl_support.px4_binary() == px4 and shared.px4_dir() == fake / "sitl" / "px4"
+    monkeypatch.setenv("SKYROUTE_SHARED", str(tmp_path / "nothing-here"))
+    assert sitl_support.arducopter_binary() is None and sitl_support.px4_binary() is None
+
+
 def test_a_shared_file_that_is_not_the_sf_map_is_not_used(monkeypatch, tmp_path):
     monkeypatch.setenv("SKYROUTE_CACHE", str(tmp_path / "empty-cache"))
     fake = tmp_path / "fake-shared"

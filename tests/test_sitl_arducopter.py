@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 
 import motion_planning as mp
-from tests.sitl_support import ROOT, ArduCopterSitl, Monitor, arducopter_binary, read_boxes, to_latlon
+from tests import shared
+from tests.sitl_support import ROOT, ArduCopterSitl, Monitor, read_boxes, to_latlon
 
-pytestmark = [pytest.mark.sitl, pytest.mark.skipif(arducopter_binary() is None,
-                                                   reason="ArduCopter SITL not found ($SKYROUTE_SHARED or ../shared)")]
+pytestmark = shared.needs_arducopter  # the one rule for ../shared (tests/shared.py); counted in the summary
 
 MAP = mp.DEFAULT_MAP
 LAT0, LON0, BOXES = read_boxes(MAP)

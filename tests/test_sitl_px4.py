@@ -17,10 +17,10 @@ import time
 import pytest
 
 import motion_planning as mp
-from tests.sitl_support import ROOT, Monitor, Px4Sitl, px4_binary, read_boxes, to_latlon
+from tests import shared
+from tests.sitl_support import ROOT, Monitor, Px4Sitl, read_boxes, to_latlon
 
-pytestmark = [pytest.mark.sitl, pytest.mark.skipif(px4_binary() is None,
-                                                   reason="PX4 SITL not found ($SKYROUTE_SHARED or ../shared)")]
+pytestmark = shared.needs_px4  # the one rule for ../shared (tests/shared.py); counted in the summary
 
 MAP = mp.DEFAULT_MAP
 LAT0, LON0, BOXES = read_boxes(MAP)

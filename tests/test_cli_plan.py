@@ -328,7 +328,7 @@ def test_a_plan_only_grid_run_loads_no_graph_or_plotting_library():
 
 def test_readme_documents_the_exit_codes_these_tests_check():
     text = " ".join((ROOT / "README.md").read_text().split())
-    assert f"Exit codes: {EXIT_OK} success; {EXIT_FAILED} the mission started but did not complete" in text
+    assert f"Exit codes: {EXIT_OK} success; {EXIT_FAILED} the mission took off but did not complete" in text
     assert f"; {EXIT_BAD_INPUT} bad input or a refusal before takeoff" in text
     assert f"; {EXIT_NO_PATH} no path" in text and f"; {EXIT_INTERRUPTED} interrupted by Ctrl-C or SIGTERM" in text
 

@@ -170,3 +170,43 @@ def test_reads_the_sf_map_unchanged():
     city = read_colliders(shared.sf_map())
     assert city.obstacles.shape == (3845, 6)
     assert (city.lat0_deg, city.lon0_deg) == (37.79248, -122.39745)
+
+
+# Where the limits are: at each limit a map is read, just past it refused (README: home within +-90/+-180 degrees,
+# boxes within 25 km of home horizontally and 10 km of the ground, half sizes >= 0). A blank line of spaces sends
+# the rows through the line-by-line reader, which checks each row on its own; both readers must agree.
+@pytest.mark.parametrize("lat0, lon0", [(90, 0), (-90, 0), (0, 180), (0, -180)])
+def test_a_home_on_the_limits_of_latitude_and_longitude_is_read(tmp_path, lat0, lon0):
+    assert read_home(write_map(tmp_path, f"lat0 {lat0}, lon0 {lon0}\n" + HEADER + BOX)) == (lat0, lon0)
+
+
+@pytest.mark.parametrize("lat0, lon0", [(90.5, 0), (-90.5, 0), (0, 180.5), (0, -180.5)])
+def test_a_home_just_past_the_limits_is_refused_on_line_1(tmp_path, lat0, lon0):
+    with pytest.raises(MapFormatError, match="outside") as info:
+        read_colliders(write_map(tmp_path, f"lat0 {lat0}, lon0 {lon0}\n" + HEADER + BOX))
+    assert info.value.line == 1
+
+
+AT_THE_LIMITS = ["24990,0,5,10,1,5", "-24990,0,5,10,1,5", "0,24990,5,1,10,5", "0,-24990,5,1,10,5",
+                 "0,0,9990,1,1,10", "0,0,-9990,1,1,10", "0,0,5,0,0,0"]
+
+
+@pytest.mark.parametrize("row", AT_THE_LIMITS)
+@pytest.mark.parametrize("blank", ["", "   \n"], ids=["fast-reader", "line-by-line"])
+def test_boxes_on_the_limits_are_read(tmp_path, blank, row):  # one a map: together they pass the grid size limit
+    obstacles = read_colliders(write_map(tmp_path, HOME + HEADER + blank + row + "\n")).obstacles
+    assert obstacles.tolist() == [[float(v) for v in row.split(",")]]
+
+
+@pytest.mark.parametrize("row, message", [
+    ("24990,0,0,10.5,1,5", r"reaches 25000.5 m from home \(north-south\)"),
+    ("0,-24990,0,1,10.5,5", r"reaches 25000.5 m from home \(east-west\)"),  # the east half size, not the height
+    ("0,0,9990,1,1,10.5", "reaches 10000.5 m from the ground"),
+    ("0,0,-9990,20,20,10.5", "reaches 10000.5 m from the ground"),  # its height, not a half size
+    ("0,0,5,0,-0.5,0", "negative half size"),
+])
+@pytest.mark.parametrize("blank", ["", "   \n"], ids=["fast-reader", "line-by-line"])
+def test_boxes_just_past_the_limits_are_refused_at_their_line(tmp_path, blank, row, message):
+    with pytest.raises(MapFormatError, match=message) as info:
+        read_colliders(write_map(tmp_path, HOME + HEADER + blank + BOX + row + "\n"))
+    assert info.value.line == 4 + len(blank.splitlines())

@@ -607,3 +607,30 @@ def test_a_goal_on_a_map_without_a_free_cell_says_so(tmp_path, capsys):
                        "0,0,15,20,20,15\n")
     assert main(["--plan-only", "--map", str(covered), *latlon(1, 1)]) == EXIT_BAD_INPUT
     assert capsys.readouterr().err.strip().endswith("; no free point on the map")
+
+
+@pytest.mark.parametrize("option", ["--timeout", "--arm-timeout", "--link-timeout"])
+def test_a_flight_timeout_given_on_the_command_line_is_read_as_a_number_and_range_checked(walled_map, capsys,
+                                                                                          option):
+    # checked before any planning or connecting, even with --plan-only: a string would not compare with a number
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), option, "0"]) == EXIT_BAD_INPUT
+    assert f"{option} must be" in one_error_line(capsys.readouterr().err)
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), option, "7.5"]) == EXIT_OK
+
+
+def test_an_unknown_planner_is_refused_by_the_parser_naming_the_choices(walled_map, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--planner", "dijkstra"])
+    assert exit_info.value.code == EXIT_BAD_INPUT  # argparse's usage error is 2, README's bad input
+    err = capsys.readouterr().err
+    assert "invalid choice: 'dijkstra'" in err and "'grid'" in err and "'voronoi'" in err
+
+
+def test_v_is_the_short_form_of_verbose(walled_map, capsys):
+    assert main(["-v", "--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3)]) == EXIT_OK
+
+
+def one_error_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]

@@ -210,3 +210,32 @@ def test_boxes_just_past_the_limits_are_refused_at_their_line(tmp_path, blank, r
     with pytest.raises(MapFormatError, match=message) as info:
         read_colliders(write_map(tmp_path, HOME + HEADER + blank + BOX + row + "\n"))
     assert info.value.line == 4 + len(blank.splitlines())
+
+
+def test_refusals_before_reading_name_the_file_without_a_line(tmp_path, monkeypatch):
+    import os
+
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+    with pytest.raises(MapFormatError) as info:
+        read_colliders(fifo)
+    assert str(info.value) == f"{fifo}: not a regular file" and info.value.line is None
+    assert info.value.problem == "not a regular file"
+    exact = write_map(tmp_path, HOME + HEADER + BOX * 20)
+    monkeypatch.setattr(maps, "MAX_FILE_BYTES", exact.stat().st_size)  # the limit is inclusive
+    assert read_colliders(exact).obstacles.shape == (20, 6)
+    monkeypatch.setattr(maps, "MAX_FILE_BYTES", exact.stat().st_size - 1)
+    with pytest.raises(MapFormatError) as info:
+        read_colliders(exact)
+    assert str(info.value).startswith(f"{exact}: the file is 0 MiB")
+
+
+@pytest.mark.parametrize("content, line, why", [
+    (b"lat0 \xff, lon0 1\n" + (HEADER + BOX).encode(), 1, "not UTF-8 text"),
+    (("lat0 95.0, lon0 1.0\n" + HEADER + BOX).encode(), 1, "outside"),
+])
+def test_read_home_names_the_file_and_line_of_a_bad_home(tmp_path, content, line, why):
+    path = write_map(tmp_path, content)
+    with pytest.raises(MapFormatError, match=why) as info:
+        read_home(path)
+    assert str(info.value).startswith(f"{path}:{line}: ")

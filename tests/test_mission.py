@@ -85,6 +85,7 @@ def test_corner_radius_keeps_the_arc_within_the_cut():
     assert fp.corner_radius_m(math.pi / 2, 0.5, 1.0) == pytest.approx(1.0)
     assert fp.corner_radius_m(0.0, 0.5, 100.0) == math.inf  # straight on
     assert fp.corner_radius_m(math.pi, 0.5, 100.0) == 0.0  # reversal: stop at the corner
+    assert fp.corner_cut_m(0.0, math.inf) == 0.0  # straight on: no arc, nothing cut (not inf x 0)
     for turn_deg in (10, 45, 90, 135, 170):
         turn = math.radians(turn_deg)
         assert fp.corner_cut_m(turn, fp.corner_radius_m(turn, 0.5, 1e6)) == pytest.approx(0.5)

@@ -239,3 +239,49 @@ def test_read_home_names_the_file_and_line_of_a_bad_home(tmp_path, content, line
     with pytest.raises(MapFormatError, match=why) as info:
         read_home(path)
     assert str(info.value).startswith(f"{path}:{line}: ")
+
+
+@pytest.mark.parametrize("content, line, message", [
+    ("\n" + HEADER + BOX, 1, "got an empty line"),  # the first line empty: said so, not a quote of what follows
+    (HOME + HEADER.rstrip("\n"), 3, "no obstacle rows"),  # a header with no newline after it is still the header
+    (b"\n\xff" + (HEADER + BOX).encode(), 2, r"not UTF-8 text \(byte 0xff at column 1\)"),  # after a first "\n"
+])
+def test_the_first_two_lines_are_read_exactly(tmp_path, content, line, message):
+    with pytest.raises(MapFormatError, match=message) as info:
+        read_colliders(write_map(tmp_path, content))
+    assert info.value.line == line
+
+
+def test_a_bad_byte_after_a_leading_newline_is_placed_at_its_own_line_and_column(tmp_path):
+    path = write_map(tmp_path, (HOME + HEADER + BOX).encode() + b"\n\xe9,2,3,4,5,6\n")
+    with pytest.raises(MapFormatError, match=r"byte 0xe9 at column 1\)") as info:
+        read_colliders(path)
+    assert info.value.line == 5
+
+
+def test_the_row_named_for_an_oversized_map_is_the_first_past_the_limit_not_the_one_reaching_it(tmp_path):
+    # 10 x 10 cells, then 10 x 20 (reaching 200: allowed), then 10 x 30: the third row (line 5) is past it
+    content = HOME + HEADER + "5,5,5,5,5,5\n5,15,5,5,5,5\n5,25,5,5,5,5\n"
+    path = write_map(tmp_path, content)
+    assert read_colliders(path, max_grid_cells=300).obstacles.shape == (3, 6)
+    with pytest.raises(MapFormatError) as info:
+        read_colliders(path, max_grid_cells=200)
+    assert info.value.line == 5 and str(info.value).startswith(f"{path}:5: this box stretches the map")
+
+
+def test_a_problem_in_rows_with_spaces_is_found_at_its_line(tmp_path):
+    path = write_map(tmp_path, HOME + HEADER + "1, 2, 3, 4, 5, 6\n\n1, 2, 3, 4, -5, 6\n")  # a blank line between
+    with pytest.raises(MapFormatError, match="negative half size") as info:
+        read_colliders(path)
+    assert info.value.line == 5
+
+
+def test_an_excerpt_of_exactly_the_limit_is_whole_and_one_more_is_cut():
+    assert maps.excerpt("x" * 10, limit=10) == repr("x" * 10)
+    assert maps.excerpt("x" * 11, limit=10) == repr("x" * 10) + "... (11 characters)"
+
+
+def test_parse_colliders_refuses_an_empty_map_by_default():
+    with pytest.raises(MapFormatError, match="no obstacle rows"):
+        parse_colliders((HOME + HEADER).encode())
+    assert parse_colliders((HOME + HEADER).encode(), allow_empty=True).obstacles.shape == (0, 6)

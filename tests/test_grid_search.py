@@ -363,6 +363,14 @@ def test_the_python_a_star_refuses_ends_off_the_grid_or_blocked_like_the_compile
     with pytest.raises(BlockedCellError) as blocked:
         python_a_star(grid, lambda a, b: 0.0, (1, 4), (0, 0))
     assert blocked.value.which == "start" and blocked.value.nearest_free in {(0, 4), (3, 4)}
+    assert tuple(blocked.value.cell) == (1, 4) and str(blocked.value).startswith("start cell (1, 4) is inside")
+
+
+def test_a_blocked_end_on_a_map_with_no_free_cell_says_so():
+    err = BlockedCellError("goal", (1, 1), None)
+    assert str(err) == "goal cell (1, 1) is inside an obstacle or its safety margin; no free cell on the map"
+    with pytest.raises(BlockedCellError, match="no free cell on the map"):
+        python_a_star(np.ones((3, 3), dtype=bool), lambda a, b: 0.0, (0, 0), (2, 2))
 
 
 def test_the_classic_heuristic_is_the_euclidean_distance():

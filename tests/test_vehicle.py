@@ -104,7 +104,8 @@ def test_attitude_heading_wraps_to_positive():
 
 
 @pytest.mark.parametrize("raw, expected", [(1, vh.LandedState.ON_GROUND), (2, vh.LandedState.IN_AIR),
-                                           (4, vh.LandedState.LANDING), (0, vh.LandedState.UNDEFINED)])
+                                           (4, vh.LandedState.LANDING), (0, vh.LandedState.UNDEFINED),
+                                           (200, vh.LandedState.UNDEFINED)])  # a value MAVLink does not define
 def test_extended_sys_state(raw, expected):
     msg = roundtrip(lambda e: e.extended_sys_state_encode(0, raw))
     assert vh.telemetry_from_extended_sys_state(vh.Telemetry(), msg, 0.0).landed_state is expected

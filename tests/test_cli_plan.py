@@ -634,3 +634,14 @@ def one_error_line(err: str) -> str:
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: "), lines
     return lines[0]
+
+
+@pytest.mark.parametrize("option, value", [("--start_lat", "91"), ("--start_lon", "-181")])
+def test_a_start_out_of_range_is_refused_on_the_command_line(walled_map, capsys, option, value):
+    start = ned_to_geodetic(LocalNED(-30.3, 25.3, 0), HOME)
+    given = {"--start_lat": str(start.lat_deg), "--start_lon": str(start.lon_deg), option: value}
+    argv = ["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3)]
+    for name, text in given.items():
+        argv += [name, text]
+    assert main(argv) == EXIT_BAD_INPUT
+    assert f"{option} must be" in one_error_line(capsys.readouterr().err)

@@ -645,3 +645,27 @@ def test_a_start_out_of_range_is_refused_on_the_command_line(walled_map, capsys,
         argv += [name, text]
     assert main(argv) == EXIT_BAD_INPUT
     assert f"{option} must be" in one_error_line(capsys.readouterr().err)
+
+
+def test_main_puts_back_the_sigterm_handler_it_found(walled_map, capsys):
+    import signal
+
+    def mine(signum, frame):  # a handler of the embedding program's
+        pass
+
+    previous = signal.signal(signal.SIGTERM, mine)
+    try:
+        assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3)]) == EXIT_OK
+        assert signal.getsignal(signal.SIGTERM) is mine
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_json_with_a_plot_and_an_export_prints_only_the_json_document(walled_map, tmp_path, capsys):
+    plot, export = tmp_path / "plan.png", tmp_path / "plan.geojson"
+    code = main(["--plan-only", "--json", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3),
+                 "--plot", str(plot), "--export", str(export)])
+    out = capsys.readouterr().out
+    assert code == EXIT_OK
+    assert json.loads(out)["waypoints"]  # one document: no 'plot written' or export lines around it
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and json.loads(export.read_text())["type"]

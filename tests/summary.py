@@ -21,16 +21,12 @@ class ResourceSummary:
         self.ran: dict[str, set[str]] = {name: set() for name in CATEGORIES}
         self.skipped: dict[str, set[str]] = {name: set() for name in CATEGORIES}
 
-    def pytest_collection_modifyitems(self, items: list[pytest.Item]) -> None:
-        for item in items:
-            for name in CATEGORIES:
-                if item.get_closest_marker(name) is not None:
-                    self.marked[name].add(item.nodeid)
-
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
+        # the report's keywords hold the test's marker names; under pytest-xdist the controller sees only reports
         for name in CATEGORIES:
-            if report.nodeid not in self.marked[name]:
+            if name not in report.keywords:
                 continue
+            self.marked[name].add(report.nodeid)
             if report.skipped:
                 self.skipped[name].add(report.nodeid)
             elif report.when == "call":

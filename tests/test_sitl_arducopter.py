@@ -23,7 +23,7 @@ import pytest
 import motion_planning as mp
 from tests import shared
 from tests.exit_codes import EXIT_INTERRUPTED, EXIT_OK  # README's numbers, not the code's constants
-from tests.sitl_support import ROOT, ArduCopterSitl, Monitor, read_boxes, to_latlon
+from tests.sitl_support import ROOT, ArduCopterSitl, Monitor, held_out_goal, read_boxes, to_latlon
 
 pytestmark = shared.needs_arducopter  # the one rule for ../shared (tests/shared.py); counted in the summary
 
@@ -66,8 +66,9 @@ def copter():
 
 def test_a_fresh_boot_flies_then_a_second_and_third_mission_on_the_same_autopilot(copter, tmp_path, capsys):
     sitl, monitor = copter
+    goal = held_out_goal(MAP, seed=5)  # a goal no sim test flies to
     started = time.monotonic()
-    code = mp.main(mission_args(sitl, GOAL_NEAR, tmp_path))
+    code = mp.main(mission_args(sitl, goal, tmp_path))
     out, err = capsys.readouterr()
     assert code == EXIT_OK, err
     lines = out.splitlines()
@@ -76,9 +77,9 @@ def test_a_fresh_boot_flies_then_a_second_and_third_mission_on_the_same_autopilo
     # ... read the failsafe parameters and said what a lost link would do
     assert any("warning: ArduCopter's GCS failsafe is off (FS_GCS_ENABLE=0)" in line for line in lines)
     assert any(line.startswith("mission complete:") for line in lines)
-    assert_landed_safely_at(monitor, GOAL_NEAR, started)
+    assert_landed_safely_at(monitor, goal, started)
     # the vehicle is left in LAND: the next missions select GUIDED before arming
-    for goal in (GOAL_SHORT, HOME_GOAL):
+    for goal in (GOAL_NEAR, HOME_GOAL):
         started = time.monotonic()
         code = mp.main(mission_args(sitl, goal, tmp_path))
         out, err = capsys.readouterr()

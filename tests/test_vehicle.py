@@ -1,25 +1,28 @@
-"""The vehicle package: pure MAVLink -> SI translation, and the link/command logic against a tiny fake autopilot.
+"""The vehicle package's pure parts: MAVLink -> SI translation, STATUSTEXT reassembly, parameter decoding, the
+autopilots' limits, readiness, link health, stream keeping, modes and connection strings.
 
 Messages are encoded to real MAVLink 2 bytes with ``mavlink.MAVLink(io.BytesIO())`` and decoded again, so the
 translation functions see exactly what the wire delivers. Expected values are worked out from the MAVLink spec
-(degE7, mm, cm/s, cdeg; PX4 main mode in bits 16-23), not copied from the code.
+(degE7, mm, cm/s, cdeg; PX4 main mode in bits 16-23) and from what the SITL autopilots were measured to send, not
+copied from the code. The link itself is tested against a fake autopilot in ``test_vehicle_link.py``.
 """
 
 from __future__ import annotations
 
+import hashlib
 import io
 import math
-import select
-import socket
-import threading
-import time
+import re
+import struct
 
 import pytest
-from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from skyroute import vehicle as vh
 from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
+from skyroute.vehicle.health import LinkHealth
+from skyroute.vehicle.streams import StreamKeeper
+from skyroute.vehicle.transport import check_connection_string
 
 MAP_ORIGIN = Geodetic(37.792480, -122.397450, 0.0)
 
@@ -127,9 +130,24 @@ def test_home_position():
 def test_statustext_keeps_the_latest():
     t = vh.Telemetry()
     for i in range(vh.STATUSTEXT_KEEP + 3):
-        t = vh.update_telemetry(t, roundtrip(lambda e, i=i: e.statustext_encode(4, f"msg {i}".encode())), float(i))
+        t = vh.with_statustext(t, vh.StatusText(4, f"msg {i}", float(i)))
     assert len(t.statustexts) == vh.STATUSTEXT_KEEP
     assert t.statustexts[-1] == vh.StatusText(4, f"msg {vh.STATUSTEXT_KEEP + 2}", float(vh.STATUSTEXT_KEEP + 2))
+
+
+def test_gps_global_origin_and_gps_raw_int():
+    msg = roundtrip(lambda e: e.gps_global_origin_encode(377924800, -1223974500, 846, 649199))
+    assert vh.telemetry_from_gps_global_origin(vh.Telemetry(), msg, 0.0).origin == (
+        pytest.approx(37.79248), pytest.approx(-122.39745), pytest.approx(0.846))
+    raw = roundtrip(lambda e: e.gps_raw_int_encode(0, 3, 377924781, -1223974503, -150, 70, 110, 5, 12640, 10))
+    t = vh.telemetry_from_gps_raw_int(vh.Telemetry(), raw, 0.0)
+    assert (t.gps_fix_type, t.satellites) == (3, 10)
+
+
+def test_a_zero_position_is_no_global_position():
+    # ArduCopter streams GLOBAL_POSITION_INT with lat = lon = 0 until its GPS has a fix
+    msg = roundtrip(lambda e: e.global_position_int_encode(700, 0, 0, 0, 0, 0, 0, 0, 65535))
+    assert not vh.telemetry_from_global_position_int(vh.Telemetry(), msg, 0.0).has_global
 
 
 def test_update_telemetry_ignores_other_messages():
@@ -146,6 +164,7 @@ def test_update_telemetry_ignores_other_messages():
     (vh.Autopilot.ARDUPILOT, "GUIDED", (4, 0)),  # ArduCopter mode numbers
     (vh.Autopilot.ARDUPILOT, "LAND", (9, 0)),
     (vh.Autopilot.ARDUPILOT, "LOITER", (5, 0)),
+    (vh.Autopilot.ARDUPILOT, "BRAKE", (17, 0)),
 ])
 def test_mode_numbers(autopilot, mode, expected):
     assert vh.mode_numbers(autopilot, mode) == expected
@@ -167,324 +186,24 @@ def test_type_mask_position_velocity_and_yaw():
 
 
 def test_map_offset_when_autopilot_origin_is_elsewhere():
-    # The vehicle stands 120 m north, 40 m west of the map origin, 2 m above home; the EKF booted there.
+    # The vehicle hovers 120 m north, 40 m west of the map origin, 2 m above its EKF origin (local down -2), at
+    # 52 m AMSL; the map's ground is at 47 m AMSL, so it is 5 m above the map's ground (it booted on a 3 m roof).
     where = ned_to_geodetic(LocalNED(120.0, -40.0, 0.0), MAP_ORIGIN)
-    t = vh.Telemetry(lat_deg=where.lat_deg, lon_deg=where.lon_deg, relative_alt_m=2.0, global_time_s=5.0,
-                     north_m=0.0, east_m=0.0, down_m=-2.0, local_v_north_mps=0.0, local_v_east_mps=0.0,
-                     local_v_down_mps=0.0, local_time_s=5.0)
-    offset = vh.map_offset(t, MAP_ORIGIN)
-    assert offset == (pytest.approx(120.0, abs=1e-3), pytest.approx(-40.0, abs=1e-3), pytest.approx(0.0))
-    assert vh.map_position(t, MAP_ORIGIN) == (pytest.approx(120.0, abs=1e-3), pytest.approx(-40.0, abs=1e-3),
-                                              pytest.approx(-2.0))
+    t = vh.Telemetry(lat_deg=where.lat_deg, lon_deg=where.lon_deg, alt_amsl_m=52.0, relative_alt_m=2.0,
+                     global_time_s=5.0, north_m=0.0, east_m=0.0, down_m=-2.0, local_v_north_mps=0.0,
+                     local_v_east_mps=0.0, local_v_down_mps=0.0, local_time_s=5.0)
+    offset = vh.map_offset(t, MAP_ORIGIN, ground_amsl_m=47.0)
+    assert offset == (pytest.approx(120.0, abs=1e-3), pytest.approx(-40.0, abs=1e-3), pytest.approx(-3.0))
+    assert vh.map_position(t, MAP_ORIGIN, 47.0) == (pytest.approx(120.0, abs=1e-3), pytest.approx(-40.0, abs=1e-3),
+                                                    pytest.approx(-5.0))
 
 
-def test_map_offset_needs_both_samples():
+def test_map_offset_needs_both_samples_and_a_ground():
     with pytest.raises(ValueError):
-        vh.map_offset(vh.Telemetry(lat_deg=1.0, lon_deg=1.0), MAP_ORIGIN)
-
-
-# ------------------------------------------------------------------------------------- fake autopilot link
-class FakeAutopilot:
-    """A few dozen lines of autopilot on 127.0.0.1: heartbeat and positions at 20 Hz, acks by script.
-
-    ``deny``: {command: number of DENIED answers (with a STATUSTEXT reason) before accepting};
-    ``silent``: {command: number of sends to ignore}; ``heartbeat``: stop sending it to simulate link loss.
-    """
-
-    def __init__(self, autopilot=mavlink.MAV_AUTOPILOT_PX4, *, deny=None, silent=None, mav_type=None,
-                 send_heartbeat=True):
-        self.autopilot = autopilot
-        self.mav_type = mavlink.MAV_TYPE_QUADROTOR if mav_type is None else mav_type
-        self.deny = dict(deny or {})
-        self.silent = dict(silent or {})
-        self.send_heartbeat = send_heartbeat
-        self.armed = False
-        self.custom_mode = 0
-        self.received: list = []
-        self.received_at: list[float] = []
-        self._server = socket.create_server(("127.0.0.1", 0))
-        self.port = self._server.getsockname()[1]
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def stop(self):
-        self._stop.set()
-        self._thread.join(timeout=2)
-        self._server.close()
-
-    def of_type(self, mtype):
-        return [m for m in self.received if m.get_type() == mtype]
-
-    def _run(self):
-        self._server.settimeout(0.1)
-        while not self._stop.is_set():
-            try:
-                sock, _ = self._server.accept()
-                break
-            except TimeoutError:
-                continue
-        else:
-            return
-        enc = mavlink.MAVLink(sock.makefile("wb", buffering=0), srcSystem=1, srcComponent=1)
-        parser = mavlink.MAVLink(None)
-        with sock:
-            try:
-                self._serve(sock, enc, parser)
-            except OSError:  # the client closed the connection
-                return
-
-    def _serve(self, sock, enc, parser):
-        next_tx = 0.0
-        while not self._stop.is_set():
-            if time.monotonic() >= next_tx:
-                next_tx = time.monotonic() + 0.05
-                self._telemetry(enc)
-            if select.select([sock], [], [], 0.01)[0]:
-                data = sock.recv(4096)
-                if not data:
-                    return
-                for msg in parser.parse_buffer(data) or []:
-                    self.received.append(msg)
-                    self.received_at.append(time.monotonic())
-                    if msg.get_type() == "COMMAND_LONG":
-                        self._command(enc, msg)
-
-    def _telemetry(self, enc):
-        if self.send_heartbeat:
-            base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-                                                                if self.armed else 0)
-            enc.send(enc.heartbeat_encode(self.mav_type, self.autopilot, base, self.custom_mode,
-                                          mavlink.MAV_STATE_STANDBY))
-        enc.send(enc.global_position_int_encode(1000, 377924800, -1223974500, 0, 0, 0, 0, 0, 0))
-        enc.send(enc.local_position_ned_encode(1000, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
-
-    def _command(self, enc, msg):
-        cmd = msg.command
-        if self.silent.get(cmd, 0) > 0:
-            self.silent[cmd] -= 1
-            return
-        if self.deny.get(cmd, 0) > 0:
-            self.deny[cmd] -= 1
-            enc.send(enc.statustext_encode(mavlink.MAV_SEVERITY_CRITICAL, b"Preflight Fail: GPS not ready"))
-            enc.send(enc.command_ack_encode(cmd, mavlink.MAV_RESULT_DENIED, 0, 0, 255, 190))
-            return
-        if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
-            self.armed = msg.param1 == 1
-        elif cmd == mavlink.MAV_CMD_DO_SET_MODE:
-            if self.autopilot == mavlink.MAV_AUTOPILOT_PX4:
-                self.custom_mode = (int(msg.param2) << 16) | (int(msg.param3) << 24)
-            else:
-                self.custom_mode = int(msg.param2)
-        enc.send(enc.command_ack_encode(cmd, mavlink.MAV_RESULT_ACCEPTED, 0, 0, 255, 190))
-
-
-@pytest.fixture
-def fake():
-    autopilots = []
-
-    def make(*args, **kwargs):
-        ap = FakeAutopilot(*args, **kwargs)
-        autopilots.append(ap)
-        return ap
-
-    yield make
-    for ap in autopilots:
-        ap.stop()
-
-
-@pytest.fixture
-def connect():
-    vehicles = []
-
-    def make(port, **kwargs):
-        kwargs.setdefault("heartbeat_timeout_s", 3.0)
-        kwargs.setdefault("command_timeout_s", 0.3)
-        v = vh.MavlinkVehicle(f"tcp:127.0.0.1:{port}", **kwargs)
-        vehicles.append(v)
-        return v
-
-    yield make
-    for v in vehicles:
-        v.close()
-
-
-def test_connect_detects_px4_and_requests_telemetry(fake, connect):
-    ap = fake()
-    v = connect(ap.port)
-    assert v.autopilot is vh.Autopilot.PX4
-    t = v.wait_for(lambda t: t.has_global and t.has_local, 2.0, "positions")
-    assert t.lat_deg == pytest.approx(37.79248)
-    requested = {int(m.param1) for m in ap.of_type("COMMAND_LONG")
-                 if m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL}
-    assert {mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
-            mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
-            mavlink.MAVLINK_MSG_ID_SYS_STATUS} <= requested
-    home_requests = [m for m in ap.of_type("COMMAND_LONG") if m.command == mavlink.MAV_CMD_REQUEST_MESSAGE]
-    assert int(home_requests[0].param1) == mavlink.MAVLINK_MSG_ID_HOME_POSITION
-    ours = ap.of_type("HEARTBEAT")
-    assert ours and ours[0].type == mavlink.MAV_TYPE_GCS and ours[0].get_srcSystem() == 255
-    assert ap.received[0].get_msgbuf()[0] == 253  # MAVLink 2 from the first packet
-
-
-def test_arm_accepted(fake, connect):
-    ap = fake()
-    v = connect(ap.port)
-    v.arm()
-    assert v.telemetry.armed
-    v.disarm()
-    assert not v.telemetry.armed
-
-
-def test_arm_denied_quotes_the_autopilot(fake, connect):
-    ap = fake(deny={mavlink.MAV_CMD_COMPONENT_ARM_DISARM: 1})
-    v = connect(ap.port)
-    with pytest.raises(vh.CommandRejected) as err:
-        v.arm()
-    assert err.value.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM
-    assert err.value.result == mavlink.MAV_RESULT_DENIED
-    assert err.value.reason == "Preflight Fail: GPS not ready"
-    assert "MAV_CMD_COMPONENT_ARM_DISARM" in str(err.value) and "GPS not ready" in str(err.value)
-    v.arm()  # the second attempt is accepted
-    assert v.telemetry.armed
-
-
-def test_command_retried_with_confirmation(fake, connect):
-    ap = fake(silent={mavlink.MAV_CMD_COMPONENT_ARM_DISARM: 2})
-    v = connect(ap.port)
-    v.arm()
-    arms = [m for m in ap.of_type("COMMAND_LONG") if m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM]
-    assert [m.confirmation for m in arms] == [0, 1, 2]
-
-
-def test_command_timeout_after_bounded_retries(fake, connect):
-    ap = fake(silent={mavlink.MAV_CMD_COMPONENT_ARM_DISARM: 99})
-    v = connect(ap.port, command_retries=2)
-    with pytest.raises(vh.CommandTimeout) as err:
-        v.arm()
-    assert err.value.attempts == 3
-    assert len([m for m in ap.of_type("COMMAND_LONG")
-                if m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM]) == 3
-    assert isinstance(err.value, vh.VehicleError)
-
-
-def test_px4_offboard_streams_setpoints_before_and_after_the_mode_switch(fake, connect):
-    ap = fake()
-    v = connect(ap.port)
-    v.wait_for(lambda t: t.has_local, 2.0, "local position")
-    v.start_offboard()
-    assert v.telemetry.mode == "OFFBOARD" or v.wait_for(lambda t: t.mode == "OFFBOARD", 1.0, "OFFBOARD")
-    mode_cmd = next(m for m in ap.of_type("COMMAND_LONG") if m.command == mavlink.MAV_CMD_DO_SET_MODE)
-    assert (mode_cmd.param1, mode_cmd.param2, mode_cmd.param3) == (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0)
-    first_mode = ap.received.index(mode_cmd)
-    assert len([m for m in ap.received[:first_mode] if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]) >= 5
-    v.goto_local(10.0, -5.0, -20.0, yaw_rad=1.0)
-    start = time.monotonic()
-    time.sleep(1.0)
-    recent = [m for m, at in zip(ap.received, ap.received_at, strict=True)
-              if at >= start and m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
-    assert len(recent) >= 10  # >= 10 Hz
-    sp = recent[-1]
-    assert (sp.x, sp.y, sp.z, sp.yaw) == (10.0, -5.0, -20.0, pytest.approx(1.0))
-    assert sp.coordinate_frame == mavlink.MAV_FRAME_LOCAL_NED
-    assert sp.type_mask == vh.TYPE_MASK_POSITION_YAW
-    v.land()
-    land = [m for m in ap.of_type("COMMAND_LONG") if m.command == mavlink.MAV_CMD_NAV_LAND]
-    assert land
-    time.sleep(0.2)
-    after = len(ap.of_type("SET_POSITION_TARGET_LOCAL_NED"))
-    time.sleep(0.3)
-    assert len(ap.of_type("SET_POSITION_TARGET_LOCAL_NED")) == after  # streaming stopped
-
-
-def test_velocity_feed_forward_is_sent_then_dropped_when_not_renewed(fake, connect):
-    ap = fake()
-    v = connect(ap.port, feedforward_timeout_s=0.3)
-    v.wait_for(lambda t: t.has_local, 2.0, "local position")
-    v.start_offboard()
-    v.goto_local(10.0, -5.0, -20.0, yaw_rad=1.0, velocity_ned=(3.0, 4.0, -1.0))
-    time.sleep(0.15)
-    sp = ap.of_type("SET_POSITION_TARGET_LOCAL_NED")[-1]
-    assert sp.type_mask == vh.TYPE_MASK_POSITION_VELOCITY_YAW
-    assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (10.0, -5.0, -20.0, 3.0, 4.0, -1.0)
-    time.sleep(0.5)  # a stalled client: the re-sent setpoint keeps the position, loses the velocity
-    sp = ap.of_type("SET_POSITION_TARGET_LOCAL_NED")[-1]
-    assert sp.type_mask == vh.TYPE_MASK_POSITION_YAW
-    assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (10.0, -5.0, -20.0, 0.0, 0.0, 0.0)
-
-
-def test_local_position_is_requested_at_the_steering_rate(fake, connect):
-    ap = fake()
-    connect(ap.port, telemetry_rate_hz=10.0, local_position_rate_hz=50.0)
-    asks = {int(m.param1): m.param2 for m in ap.of_type("COMMAND_LONG")
-            if m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL}
-    assert asks[mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED] == pytest.approx(1e6 / 50.0)
-    assert asks[mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] == pytest.approx(1e6 / 10.0)
-
-
-def test_ardupilot_guided_takeoff(fake, connect):
-    ap = fake(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
-    v = connect(ap.port)
-    assert v.autopilot is vh.Autopilot.ARDUPILOT
-    v.wait_for(lambda t: t.has_local, 2.0, "local position")
-    v.arm()
-    v.takeoff(15.0)
-    cmds = [m for m in ap.of_type("COMMAND_LONG")
-            if m.command in (mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_CMD_NAV_TAKEOFF)]
-    assert [(m.command, m.param2) for m in cmds][:1] == [(mavlink.MAV_CMD_DO_SET_MODE, 4.0)]  # GUIDED
-    assert cmds[-1].command == mavlink.MAV_CMD_NAV_TAKEOFF and cmds[-1].param7 == 15.0
-    assert not ap.of_type("SET_POSITION_TARGET_LOCAL_NED")  # nothing that would cut the takeoff short
-    v.land()
-    last_mode = [m for m in ap.of_type("COMMAND_LONG") if m.command == mavlink.MAV_CMD_DO_SET_MODE][-1]
-    assert last_mode.param2 == 9  # LAND
-
-
-def test_no_heartbeat_raises_connection_timeout(fake):
-    ap = fake(send_heartbeat=False)
-    start = time.monotonic()
-    with pytest.raises(vh.ConnectionTimeout, match="within 0.5 s"):
-        vh.MavlinkVehicle(f"tcp:127.0.0.1:{ap.port}", heartbeat_timeout_s=0.5)
-    assert time.monotonic() - start < 2.0
-
-
-def test_gcs_heartbeats_are_ignored(fake):
-    ap = fake(mavlink.MAV_AUTOPILOT_INVALID, mav_type=mavlink.MAV_TYPE_GCS)
-    with pytest.raises(vh.ConnectionTimeout):
-        vh.MavlinkVehicle(f"tcp:127.0.0.1:{ap.port}", heartbeat_timeout_s=0.5)
-
-
-def test_nothing_listening_raises_connection_timeout():
-    with socket.create_server(("127.0.0.1", 0)) as s:
-        port = s.getsockname()[1]
-    with pytest.raises(vh.ConnectionTimeout, match="refused"):
-        vh.MavlinkVehicle(f"tcp:127.0.0.1:{port}", heartbeat_timeout_s=0.5)
-
-
-def test_link_lost(fake, connect):
-    ap = fake()
-    v = connect(ap.port, link_timeout_s=0.3)
-    v.check_link()
-    ap.send_heartbeat = False
-    time.sleep(0.5)
-    assert not v.link_ok
-    with pytest.raises(vh.LinkLost):
-        v.check_link()
-    with pytest.raises(vh.LinkLost):
-        v.arm()
-
-
-def test_tlog_holds_both_directions(fake, connect, tmp_path):
-    ap = fake()
-    path = tmp_path / "flight.tlog"
-    v = connect(ap.port, tlog_path=path)
-    v.arm()
-    v.close()
-    log = mavutil.mavlink_connection(str(path))
-    seen = set()
-    while (m := log.recv_msg()) is not None:
-        seen.add((m.get_type(), m.get_srcSystem()))
-    log.close()
-    assert {("HEARTBEAT", 1), ("HEARTBEAT", 255), ("COMMAND_LONG", 255), ("COMMAND_ACK", 1)} <= seen
+        vh.map_offset(vh.Telemetry(lat_deg=1.0, lon_deg=1.0), MAP_ORIGIN, 0.0)
+    t = vh.Telemetry(lat_deg=1.0, lon_deg=1.0, north_m=0.0, east_m=0.0, down_m=0.0)
+    with pytest.raises(ValueError, match="finite"):
+        vh.map_offset(t, MAP_ORIGIN, math.nan)
 
 
 def test_heartbeat_generic_autopilot_reads_px4_modes():
@@ -507,37 +226,199 @@ def test_a_stale_on_ground_state_is_not_trusted_while_climbing():
     assert not vh.Telemetry().on_ground  # nothing known yet
 
 
-def test_hold_uses_loiter_mode(fake, connect):
-    ap = fake()
-    v = connect(ap.port)
-    v.hold()
-    mode_cmd = [m for m in ap.of_type("COMMAND_LONG") if m.command == mavlink.MAV_CMD_DO_SET_MODE][-1]
-    assert (mode_cmd.param2, mode_cmd.param3) == (4, 3)  # AUTO.LOITER
+
+# -------------------------------------------------------------------------------------------- STATUSTEXT
+def feed(assembler, messages, t0=0.0):
+    """Feed (severity, text, id, chunk_seq) tuples through real MAVLink STATUSTEXT packets; returns the texts."""
+    out = []
+    for k, (severity, text, ident, seq) in enumerate(messages):
+        msg = roundtrip(lambda e, s=severity, x=text, i=ident, q=seq: e.statustext_encode(s, x.encode(), i, q))
+        out += assembler.add(msg.severity, msg.text, msg.id, msg.chunk_seq, t0 + 0.01 * k)
+    return out
 
 
-# ------------------------------------------------------------------------------ flights against sim/
-@pytest.mark.flight
-@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
-def test_fly_against_sim(sim_start, autopilot):
-    sim = sim_start(strict=True, autopilot=autopilot)
-    with vh.MavlinkVehicle(f"tcp:127.0.0.1:{sim.port}", heartbeat_timeout_s=5.0) as v:
-        assert v.autopilot is vh.Autopilot(autopilot)
-        t = v.wait_for(lambda t: t.has_local and t.home is not None, 5.0, "position and home")
-        assert t.on_ground and not t.armed
-        v.arm()
-        target = v.takeoff(8.0)
-        v.wait_for(lambda t: t.down_m < target.down_m + 0.5, 20.0, "takeoff altitude")
-        assert v.in_control or v.wait_for(lambda t: t.mode in ("OFFBOARD", "GUIDED"), 2.0, "control mode")
-        v.goto_local(target.north_m - 10.0, target.east_m + 5.0, target.down_m, yaw_rad=math.pi)
-        v.wait_for(lambda t: math.hypot(t.north_m - target.north_m + 10, t.east_m - target.east_m - 5) < 0.3
-                   and abs(t.heading_rad - math.pi) < 0.1, 20.0, "goto")
-        v.land()
-        v.wait_for(lambda t: t.on_ground, 30.0, "touchdown")
-        if v.telemetry.armed:
-            v.disarm()
-        assert not v.telemetry.armed
-    report = sim.stop()
-    assert report["landed"]["north_m"] == pytest.approx(-10.0, abs=0.3)
-    assert report["landed"]["east_m"] == pytest.approx(5.0, abs=0.3)
-    assert not report["collisions"]
-    assert all(c["result_name"] == "MAV_RESULT_ACCEPTED" for c in report["commands"])
+def test_px4_chunked_refusal_is_reassembled_whole():
+    # measured on PX4 1.15 SITL: a 51-byte text in two chunks, the second "t" plus PX4's event tab
+    texts = feed(vh.StatusTextAssembler(), [(2, "Arming denied: Resolve system health failures firs", 1, 0),
+                                            (2, "t\t", 1, 1)])
+    assert [(s.severity, s.text) for s in texts] == [(2, "Arming denied: Resolve system health failures first")]
+
+
+def test_a_text_of_exactly_50_bytes_waits_for_its_next_chunk_and_unchunked_texts_pass_at_once():
+    a = vh.StatusTextAssembler()
+    first = "x" * 50
+    assert feed(a, [(4, first, 9, 0)]) == []
+    assert [s.text for s in feed(a, [(6, "PreArm: Need Position Estimate", 0, 0)])] == [
+        "PreArm: Need Position Estimate"]  # ArduPilot: id 0, never chunked
+    assert [s.text for s in feed(a, [(4, "yz", 9, 1)])] == [first + "yz"]
+
+
+def test_a_lost_chunk_is_marked_and_a_stale_text_is_flushed():
+    a = vh.StatusTextAssembler(stale_s=1.0)
+    texts = feed(a, [(3, "a" * 50, 5, 0), (3, "end", 5, 2)])  # chunk 1 lost
+    assert [s.text for s in texts] == ["a" * 50 + "…end"]
+    feed(a, [(3, "b" * 50, 6, 0)])
+    late = a.add(6, b"unrelated", 0, 0, 10.0)
+    assert [s.text for s in late] == ["b" * 50 + "…", "unrelated"]
+
+
+def test_the_refusal_quoted_is_the_one_that_came_with_the_refusal():
+    texts = (vh.StatusText(2, "PreArm: Throttle below failsafe", 1.0),  # an older refusal
+             vh.StatusText(6, "EKF3 IMU0 is using GPS", 5.0),  # info, not a reason
+             vh.StatusText(2, "Arming denied: Resolve system health failures first", 5.1),
+             vh.StatusText(2, "Preflight Fail: horizontal velocity unstable", 5.2),
+             vh.StatusText(4, "Battery 1 low", 9.0))  # later
+    assert vh.refusal_reason(texts, 5.0, 6.0, "arm") == (
+        "Arming denied: Resolve system health failures first; Preflight Fail: horizontal velocity unstable")
+    assert vh.refusal_reason(texts, 5.0, 5.05, "arm") is None
+
+
+# ------------------------------------------------------------------------------------------- parameters
+def param_message(name, value, ptype):
+    return roundtrip(lambda e: e.param_value_encode(name.encode(), value, ptype, 1000, 65535))
+
+
+def test_px4_sends_integers_bytewise_and_ardupilot_as_floats():
+    from skyroute.vehicle.params import bytewise_encoding, decode_param_value
+
+    bits = struct.unpack("<f", struct.pack("<i", 4))[0]  # NAV_DLL_ACT = 4 as PX4 puts it on the wire
+    px4 = param_message("NAV_DLL_ACT", bits, mavlink.MAV_PARAM_TYPE_INT32)
+    assert decode_param_value(px4.param_value, px4.param_type, bytewise=True) == 4.0
+    ardu = param_message("FS_GCS_ENABLE", 1.0, mavlink.MAV_PARAM_TYPE_INT8)
+    assert decode_param_value(ardu.param_value, ardu.param_type, bytewise=False) == 1.0
+    real = param_message("COM_OF_LOSS_T", 1.0, mavlink.MAV_PARAM_TYPE_REAL32)
+    assert decode_param_value(real.param_value, real.param_type, bytewise=True) == 1.0
+    # AUTOPILOT_VERSION decides (PX4 1.15 sets PARAM_ENCODE_BYTEWISE, ArduCopter 4.7 does not)
+    assert bytewise_encoding(vh.Autopilot.PX4, 0xE8FF) and not bytewise_encoding(vh.Autopilot.ARDUPILOT, 0xFBEF)
+
+
+# ------------------------------------------------------------------------------------------------ limits
+def test_ardupilot_defaults_hover_on_a_lost_link_and_accelerate_at_2_5():
+    # ArduCopter SITL defaults (read on V4.7.0-dev): FS_GCS_ENABLE 0, GUID_TIMEOUT 3, WPNAV_SPEED 1000 cm/s,
+    # WPNAV_ACCEL 250 cm/s/s
+    lim = vh.flight_limits(vh.Autopilot.ARDUPILOT, {"FS_GCS_ENABLE": 0.0, "GUID_TIMEOUT": 3.0, "WPNAV_SPEED": 1000.0,
+                                                    "WPNAV_ACCEL": 250.0}, our_system=255)
+    assert (lim.cruise_mps, lim.accel_mps2, lim.hold_last_s) == (10.0, 2.5, 3.0)
+    assert lim.lateral_accel_mps2 == pytest.approx(1.5)  # corners planned with 0.6 x: its target has a jerk limit
+    assert lim.leaves_flying and "FS_GCS_ENABLE=0" in lim.link_loss and "hovering" in lim.link_loss
+    # the measured coast: 5 m/s for GUID_TIMEOUT then braking at 2.5 m/s^2 ended 20.5 m past the last target
+    assert lim.coast_m(5.0) == pytest.approx(5.0 * 3.0 + 25.0 / 5.0)
+
+
+def test_ardupilot_gcs_failsafe_counts_only_its_own_gcs_system():
+    on = {"FS_GCS_ENABLE": 5.0, "FS_GCS_TIMEOUT": 5.0, "MAV_GCS_SYSID": 255.0}
+    assert not vh.flight_limits(vh.Autopilot.ARDUPILOT, on, our_system=255).leaves_flying
+    assert "LAND" in vh.flight_limits(vh.Autopilot.ARDUPILOT, on, our_system=255).link_loss
+    other = vh.flight_limits(vh.Autopilot.ARDUPILOT, {**on, "MAV_GCS_SYSID": 250.0}, our_system=255)
+    assert other.leaves_flying and "system 250" in other.link_loss
+
+
+def test_px4_defaults_hover_unless_a_loss_action_lands():
+    # PX4 1.15 defaults (read on SITL): COM_OF_LOSS_T 1.0, COM_OBL_RC_ACT 0, NAV_DLL_ACT 0, MPC_ACC_HOR 3
+    stock = vh.flight_limits(vh.Autopilot.PX4, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 0.0, "NAV_DLL_ACT": 0.0,
+                                                "MPC_XY_VEL_MAX": 12.0, "MPC_ACC_HOR": 3.0, "MPC_XY_P": 0.95},
+                              our_system=255)
+    assert stock.leaves_flying and (stock.cruise_mps, stock.accel_mps2) == (12.0, 3.0)
+    assert stock.hold_last_s == pytest.approx(1.0 / 0.95)  # the feed-forward overshoots by v / MPC_XY_P
+    landing = vh.flight_limits(vh.Autopilot.PX4, {"COM_OBL_RC_ACT": 4.0}, our_system=255)
+    assert not landing.leaves_flying and "Land" in landing.link_loss and "not reported" in landing.link_loss
+
+
+def test_the_clearance_speed_is_the_inverse_of_the_coast():
+    lim = vh.FlightLimits(hold_last_s=3.0, brake_mps2=2.5)
+    for speed in (0.5, 3.0, 10.0):
+        assert lim.speed_for_clearance_mps(lim.coast_m(speed)) == pytest.approx(speed)
+    assert lim.speed_for_clearance_mps(0.0) == 0.0
+
+
+# --------------------------------------------------------------------------------------------- readiness
+def test_a_fresh_ardupilot_is_not_ready_until_its_ekf_uses_gps():
+    # what a freshly booted ArduCopter SITL sends: GLOBAL_POSITION_INT at 0, 0 and no LOCAL_POSITION_NED
+    t = vh.Telemetry(last_heartbeat_s=0.0, lat_deg=0.0, lon_deg=0.0, global_rx_s=9.5, gps_fix_type=1,
+                     satellites=0, prearm_ok=False,
+                     statustexts=(vh.StatusText(2, "PreArm: Need Position Estimate", 9.0),
+                                  vh.StatusText(6, "Barometer 1 calibration complete", 9.1)))
+    r = vh.readiness(t, now_s=10.0)
+    assert not r.ready
+    assert r.missing == ("a 3D GPS fix (0 satellites)", "a global position estimate", "a home position",
+                         "a local position estimate", "a landed state (EXTENDED_SYS_STATE)",
+                         "the autopilot's pre-arm checks")
+    assert r.reasons == ("PreArm: Need Position Estimate",)
+    ready = vh.Telemetry(last_heartbeat_s=0.0, lat_deg=37.0, lon_deg=-122.0, global_rx_s=9.9, north_m=0.0,
+                         east_m=0.0, down_m=0.0, local_rx_s=9.9, home=MAP_ORIGIN, gps_fix_type=3, prearm_ok=True,
+                         landed_rx_s=9.9)
+    assert vh.readiness(ready, now_s=10.0).ready
+    assert "a fresh local position" in vh.readiness(ready, now_s=20.0).describe()  # the stream stopped
+
+
+# ------------------------------------------------------------------------------------------- link health
+def test_any_message_keeps_the_link_alive_and_the_timeout_follows_the_round_trip():
+    now = [0.0]
+    health = LinkHealth(floor_s=2.0, rtt_factor=4.0, clock=lambda: now[0])
+    assert not health.ok()  # nothing heard yet
+    for k in range(100):  # positions at 20 Hz, no heartbeat for 5 s
+        now[0] = 0.05 * k
+        health.heard()
+    assert health.ok()
+    now[0] = 4.95 + 1.9
+    assert health.ok()
+    now[0] = 4.95 + 2.1
+    assert not health.ok()
+    for _ in range(5):
+        health.round_trip(0.4)  # 200 ms each way
+    assert health.timeout_s == pytest.approx(1.6 if 1.6 > 2.0 else 2.0)
+    health.round_trip(0.9)
+    assert health.timeout_s == pytest.approx(3.6) and health.rtt_s == pytest.approx(0.8 * 0.4 + 0.2 * 0.9)
+
+
+# ----------------------------------------------------------------------------------------------- streams
+def test_a_stream_that_stops_is_asked_for_again_with_backoff():
+    k = StreamKeeper({"GLOBAL_POSITION_INT": 10.0}, patience_s=2.0, max_backoff_s=8.0)
+    asked = []
+    for step in range(300):  # 30 s, the stream never arrives
+        now = 0.1 * step
+        if k.due(now):
+            k.asked("GLOBAL_POSITION_INT", now)
+            asked.append(round(now, 1))
+    assert asked == [0.0, 2.0, 6.0, 14.0, 22.0]  # 2, 4, 8, 8 (capped) s apart
+    k.received("GLOBAL_POSITION_INT", 24.5)
+    assert not k.due(25.0) and k.silent(25.0) == []
+
+
+# ------------------------------------------------------------------------------------------- modes
+@pytest.mark.parametrize("autopilot, mode, kind", [
+    (vh.Autopilot.PX4, "OFFBOARD", "ours"), (vh.Autopilot.PX4, "LOITER", "hold"),
+    (vh.Autopilot.PX4, "RTL", "return"), (vh.Autopilot.PX4, "POSCTL", "pilot"), (vh.Autopilot.PX4, "ALTCTL", "pilot"),
+    (vh.Autopilot.PX4, "MISSION", "other"),
+    (vh.Autopilot.ARDUPILOT, "GUIDED", "ours"), (vh.Autopilot.ARDUPILOT, "LAND", "return"),
+    (vh.Autopilot.ARDUPILOT, "LOITER", "pilot"), (vh.Autopilot.ARDUPILOT, "STABILIZE", "pilot"),
+    (vh.Autopilot.ARDUPILOT, "BRAKE", "hold"), (vh.Autopilot.ARDUPILOT, "AUTO", "other"),
+    (vh.Autopilot.GENERIC, "OFFBOARD", "ours"),
+])
+def test_mode_kinds(autopilot, mode, kind):
+    assert vh.mode_kind(autopilot, mode).value == kind
+
+
+# ------------------------------------------------------------------------------------------- connections
+@pytest.mark.parametrize("text, why", [
+    ("bogus://x", "unknown connection type 'bogus'"), ("tcp:127.0.0.1:abc", "needs HOST:PORT"),
+    ("tcp:localhost", "needs HOST:PORT"), ("udpin:0.0.0.0:99999", "port 99999 is not in 1..65535"),
+    ("", "empty"), ("localhost:14550", "unknown connection type 'localhost'"),
+])
+def test_connection_strings_pymavlink_would_misread_are_refused(text, why):
+    with pytest.raises(vh.BadConnection, match=re.escape(why)):
+        check_connection_string(text)
+
+
+def test_connection_strings_pymavlink_cannot_open_are_bad_connections():
+    with pytest.raises(vh.BadConnection, match="/dev/skyroute-no-such-device"):
+        vh.MavlinkVehicle("/dev/skyroute-no-such-device", heartbeat_timeout_s=0.5)
+    with pytest.raises(vh.BadConnection, match="unknown host"):
+        vh.MavlinkVehicle("tcp:no-such-host.invalid:5760", heartbeat_timeout_s=0.5)
+
+
+def test_signing_key_is_hex_or_the_sha256_of_a_passphrase():
+    assert vh.signing_key("ab" * 32) == bytes([0xAB] * 32)
+    assert vh.signing_key("correct horse") == hashlib.sha256(b"correct horse").digest()
+    with pytest.raises(ValueError):
+        vh.signing_key("  ")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -39,8 +40,6 @@ def make_log_dir(log_dir: str | Path) -> Path:
 
 def open_logs(log_dir: str | Path) -> tuple[Path, Path, logging.Handler]:
     """Create ``log_dir`` and a navigation log handler (flushed after every record) plus a tlog path."""
-    import time
-
     log_dir = make_log_dir(log_dir)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     nav_path, tlog_path = log_dir / f"navlog-{stamp}.txt", log_dir / f"flight-{stamp}.tlog"
@@ -61,20 +60,36 @@ def fly(
     heartbeat_timeout_s: float,
     arm_timeout_s: float,
     link_lost_timeout_s: float = 30.0,
+    target_system: int | None = None,
+    signing_key: str | None = None,
+    ground_amsl_m: float | None = None,
+    quiet: bool = False,
     log_dir: str | Path,
     plot: str | None,
     view_port: int | None = None,
     exports: Sequence[str] | None = None,
     out,
 ) -> int:
-    """Connect, arm, plan from where the vehicle is, take off, fly, land at the goal, disarm.
+    """Connect, wait for the vehicle, plan from where it is, arm, take off, fly, land at the goal, disarm.
 
     Returns the exit code; problems before takeoff raise :class:`UserError`. Whatever happens after takeoff,
-    the mission lands (or holds) before this returns, and says so.
+    the mission lands (or holds, or leaves a vehicle whose link stayed lost to its failsafe) before this returns,
+    and says so. Progress lines go to ``out`` unless ``quiet``.
     """
     from skyroute import vehicle as vehicle_mod
     from skyroute.flight import mission as mission_mod
+    from skyroute.planning.clearance import Clearance
 
+    def say(line: str) -> None:
+        if not quiet:
+            print(line, file=out, flush=True)
+
+    key = None
+    if signing_key is not None:
+        try:
+            key = vehicle_mod.signing_key(signing_key)
+        except ValueError as exc:
+            raise UserError(f"--signing-key: {exc}") from None
     nav_path, tlog_path, handler = open_logs(log_dir)
     root = logging.getLogger()
     saved_levels = [(root, root.level)] + [(h, h.level) for h in root.handlers]  # restored on the way out
@@ -88,6 +103,7 @@ def fly(
     view = None
 
     def plan_from(start_north_m: float, start_east_m: float) -> np.ndarray:
+        started = time.monotonic()
         try:
             plan = make_plan(
                 setting, (start_north_m, start_east_m), goal_ne, planner,
@@ -96,40 +112,49 @@ def fly(
         except UserError as exc:
             raise PlanRefused(exc) from None
         log.info(plan_summary(plan))
+        if time.monotonic() - started > 2.0 and not plans:
+            say(f"planned in {time.monotonic() - started:.1f} s (the first run compiles the planner; later runs "
+                "reuse the compiled code)")
         plans.append(plan)
         return plan.waypoints
 
+    geometry = Clearance(setting.city.obstacles, setting.safety_m)
     try:
         view = open_view(view_port, setting, goal_ne, out)
-        print(f"connecting to {connection} ...", file=out, flush=True)
+        say(f"connecting to {connection} ...")
         try:
             drone = vehicle_mod.MavlinkVehicle(
-                connection, heartbeat_timeout_s=heartbeat_timeout_s, tlog_path=tlog_path
+                connection, heartbeat_timeout_s=heartbeat_timeout_s, tlog_path=tlog_path,
+                target_system=target_system, signing_key=key,
             )
+        except vehicle_mod.BadConnection as exc:
+            raise UserError(str(exc)) from None
         except vehicle_mod.VehicleError as exc:
             raise UserError(f"no autopilot answered on {connection}: {exc}") from None
         try:
-            print(f"connected to a {drone.autopilot.name} autopilot; logs in {nav_path} and {tlog_path}",
-                  file=out, flush=True)
+            name = {"PX4": "a PX4", "ARDUPILOT": "an ArduPilot"}.get(drone.autopilot.name, "a generic MAVLink")
+            say(f"connected to {name} autopilot (system {drone.target[0]}); logs in {nav_path} and {tlog_path}")
             mission = mission_mod.Mission(
                 drone, plan_from, altitude_m=setting.altitude_m, map_origin=setting.home,
                 no_path_errors=(PlanRefused,), vehicle_errors=(vehicle_mod.VehicleError,),
+                goal_ne=goal_ne, surface_fn=geometry.surface_m, ground_amsl_m=ground_amsl_m,
+                clearance_fn=geometry.ray_m, progress=say,
                 arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s,
             )
             if view is not None:
                 view.follow(mission, drone)
             try:
                 result = mission.run()
-            except vehicle_mod.VehicleError as exc:  # before arming: e.g. no position to plan from
-                raise UserError(f"the vehicle did not get ready: {exc}") from None
-            except mission_mod.ArmingFailed as exc:
+            except (mission_mod.NotReady, mission_mod.ArmingFailed) as exc:
                 raise UserError(str(exc)) from None
             except mission_mod.NoPathFound as exc:
                 cause = exc.__cause__
                 if isinstance(cause, PlanRefused):
-                    raise UserError(f"{cause.error} (disarmed, never took off)", cause.error.exit_code) from None
+                    raise UserError(f"{cause.error} (never armed)", cause.error.exit_code) from None
                 raise UserError(str(exc), EXIT_NO_PATH) from None
             except mission_mod.MissionError as exc:
+                if not any(new is mission_mod.MissionState.TAKEOFF for _, _, new in mission.result.history):
+                    raise UserError(f"{exc}") from None  # it never took off: a refusal before takeoff
                 print(f"error: mission failed: {exc}", file=sys.stderr)
                 if exc.result is not None and plans and plot:
                     save_plot(plot, setting, plans[-1], exc.result.track[:, 1:3])
@@ -165,6 +190,10 @@ def interrupted_outcome(mission) -> str:
     if state is mission_mod.MissionState.MANUAL:
         if any(new is mission_mod.MissionState.TAKEOFF for _, _, new in history):
             return "the vehicle was landed and disarmed first"
-        return "the vehicle is disarmed on the ground; it never took off" if history else "the vehicle was never armed"
+        if any(new is mission_mod.MissionState.ARMING for _, _, new in history):
+            return "the vehicle is disarmed on the ground; it never took off"
+        return "the vehicle was never armed"
+    if state is mission_mod.MissionState.HANDED_OVER:
+        return "the vehicle was handed over to its pilot"
     return (f"the mission stopped in state {state.name}: the vehicle may not be on the ground and disarmed; "
             "the autopilot's failsafe owns it")

@@ -46,6 +46,9 @@ def default_map_path() -> Path:
 DEFAULT_MAP = default_map_path()
 
 
+_DASHED = {"arm_timeout", "link_timeout", "target_system", "ground_amsl"}
+
+
 def check_numbers(**options) -> None:
     """Refuse NaN, infinite and out-of-range numbers before they reach a planner or a vehicle.
 
@@ -58,6 +61,7 @@ def check_numbers(**options) -> None:
         "speedup": (0.0, 1_000.0, False), "timeout": (0.0, 86_400.0, False),
         "arm_timeout": (0.0, 86_400.0, False), "link_timeout": (0.0, 86_400.0, False),
         "port": (1, 65_535, True), "seed": (0, 2**32 - 1, True), "samples": (2, 1_000_000, True),
+        "target_system": (1, 255, True), "ground_amsl": (-500.0, 9_000.0, True),
     }
     for name, value in options.items():
         if value is None or name not in ranges:
@@ -65,8 +69,8 @@ def check_numbers(**options) -> None:
         low, high, low_ok = ranges[name]
         if not (math.isfinite(value) and (low <= value if low_ok else low < value) and value <= high):
             bound = f"{'>=' if low_ok else '>'} {low:g} and <= {high:g}"
-            raise UserError(f"--{name.replace('_', '-') if name.endswith('timeout') else name} must be {bound}, "
-                            f"got {value}")
+            flag = name.replace("_", "-") if name in _DASHED else name  # the classic flags keep underscores
+            raise UserError(f"--{flag} must be {bound}, got {value}")
 
 
 
@@ -99,6 +103,10 @@ def run(
     timeout: float = 15.0,
     arm_timeout: float = 60.0,
     link_timeout: float = 30.0,
+    target_system: int | None = None,
+    signing_key: str | None = None,
+    ground_amsl: float | None = None,
+    quiet: bool = False,
     log_dir: str | Path = "logs",
     view: int | None = None,
     export: Sequence[str] | None = None,
@@ -115,7 +123,8 @@ def run(
         raise UserError("give both --start_lat and --start_lon, or neither (start at the map's home)")
     check_numbers(goal_lat=goal_lat, goal_lon=goal_lon, start_lat=start_lat, start_lon=start_lon, alt=alt,
                   safety=safety, goal_alt=goal_alt, seed=seed, port=port, speedup=speedup, timeout=timeout,
-                  arm_timeout=arm_timeout, link_timeout=link_timeout, samples=samples)
+                  arm_timeout=arm_timeout, link_timeout=link_timeout, samples=samples,
+                  target_system=target_system, ground_amsl=ground_amsl)
     if goal_alt is not None and planner not in PLANNERS_3D:
         raise UserError(f"--goal_alt needs a 3D planner ({' or '.join(PLANNERS_3D)}), not {planner}")
     if plot and not Path(plot).resolve().parent.is_dir():
@@ -132,8 +141,9 @@ def run(
         check_endpoint(setting, "goal", *goal_ne, on_map_only=goal_alt is not None)
         make_log_dir(log_dir)
         options = dict(planner=planner, goal_alt_m=goal_alt, seed=seed, heartbeat_timeout_s=timeout,
-                       arm_timeout_s=arm_timeout, link_lost_timeout_s=link_timeout, log_dir=log_dir, plot=plot,
-                       view_port=view, exports=export, out=out)
+                       arm_timeout_s=arm_timeout, link_lost_timeout_s=link_timeout, target_system=target_system,
+                       signing_key=signing_key, ground_amsl_m=ground_amsl, quiet=quiet, log_dir=log_dir,
+                       plot=plot, view_port=view, exports=export, out=out)
         if not sim:
             return fly(setting, goal_ne, connection=connection or f"tcp:{host}:{port}", **options)
         import time
@@ -144,7 +154,8 @@ def run(
                              report_path=Path(log_dir) / f"sim-report-{stamp}.json",
                              log_path=Path(log_dir) / f"sim-{stamp}.txt")
         with bundled:
-            print(f"started the bundled sim on {bundled.connection} at {speedup:g}x speed", file=out, flush=True)
+            if not quiet:
+                print(f"started the bundled sim on {bundled.connection} at {speedup:g}x speed", file=out, flush=True)
             code = fly(setting, goal_ne, connection=bundled.connection, **options)
         report = bundled.report()
         if report is not None:
@@ -212,6 +223,15 @@ def build_parser() -> argparse.ArgumentParser:
     link.add_argument("--link-timeout", dest="link_timeout", type=float, default=30.0,
                       help="seconds to wait for a link lost in flight to come back before giving up "
                       "(the autopilot's own failsafe then owns the vehicle)")
+    link.add_argument("--target-system", dest="target_system", type=int,
+                      help="fly this MAVLink system id when several vehicles heartbeat on one link "
+                      "(default: the first autopilot heard)")
+    link.add_argument("--signing-key", dest="signing_key", metavar="KEY",
+                      help="MAVLink 2 signing: 64 hex digits are the 32-byte key, any other text is hashed with "
+                      "SHA-256 (as MAVProxy's 'signing setup'); unsigned packets are then dropped")
+    link.add_argument("--ground-amsl", dest="ground_amsl", type=float, metavar="M",
+                      help="altitude of the map's ground above mean sea level (default: from the vehicle standing "
+                      "on the surface the map shows under it)")
     link.add_argument("--log-dir", dest="log_dir", default="logs", help="where navigation logs and tlogs go")
     output = parser.add_argument_group("output")
     output.add_argument("--plan-only", dest="plan_only", action="store_true", help="plan and print; no drone")
@@ -224,9 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="write the plan (and after a flight the flown track) to FILE, format from the "
                         "extension: .plan (QGroundControl), .waypoints (MAVProxy/Mission Planner), .geojson, .kml; "
                         "repeatable")
-    output.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
-    output.add_argument("-q", "--quiet", action="store_true",
-                        help="no progress lines on stderr (such as the first run's 'compiling' notice)")
+    output.add_argument("-v", "--verbose", action="store_true", help="log everything (INFO) to stderr")
+    output.add_argument("-q", "--quiet", action="store_true", help="no progress lines while flying")
     return parser
 
 

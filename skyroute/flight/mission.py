@@ -1,211 +1,66 @@
-"""The mission state machine: arm, plan, take off, fly the waypoints, land at the goal, disarm.
+"""The mission: wait for the vehicle, plan, arm, take off, fly the waypoints, land at the goal, disarm.
 
-The machine is data: :data:`TRANSITIONS` maps ``(MissionState, MissionEvent)`` to the next state and
-:func:`next_state` refuses anything else. :class:`Mission` only talks to an injected vehicle (anything with the
-methods of :class:`Vehicle`, e.g. ``vehicle.MavlinkVehicle`` or a test fake) and never imports pymavlink.
+The state machine is data (:mod:`.states`); :class:`Mission` only talks to an injected vehicle (anything with
+the methods of :class:`~.protocol.Vehicle`, e.g. ``vehicle.MavlinkVehicle`` or a test fake) and never imports
+pymavlink or the planners.
 
-Frames: waypoints are in the MAP frame (NED at the map's lat0/lon0, altitude 0 = home altitude) as
-``[north_m, east_m, altitude_m, heading_rad]``. The vehicle is commanded in the autopilot's local frame;
-``vehicle.map_offset(map_origin)`` gives ``map = local + offset`` once, before arming.
+Order (what real autopilots need): wait until the vehicle is ready (position estimates, home, pre-arm checks;
+one progress line every few seconds with the autopilot's own reasons), tie its altitudes to the map's ground
+(:mod:`.preflight`), read its limits, plan from where it is, select the flight mode, arm, take off at once (an
+idle armed vehicle disarms itself after ~10 s). An arm refusal the autopilot calls permanent while it says it is
+ready fails at once with its reason; others are retried until ``arm_timeout_s``.
+
+Frames: waypoints are in the MAP frame (NED at the map's lat0/lon0, altitude 0 at the map's ground) as
+``[north_m, east_m, altitude_m, heading_rad]``; the vehicle is commanded in the autopilot's local frame,
+``map = local + offset``.
 
 Safety: any failure after the takeoff command lands the vehicle (or holds it, if landing cannot be commanded)
-before the error propagates; Ctrl-C in flight lands first and then re-raises KeyboardInterrupt, and so does an
-unexpected exception (a bug is re-raised as itself, never retried as a vehicle refusal); a lost link is waited for
-``link_lost_timeout_s`` and then reported (the autopilot's own failsafe owns the vehicle). A vehicle that disarms
-between takeoff and touchdown (a crash, or the autopilot killed the motors) is not commanded any more: the mission
-stops streaming setpoints and raises :class:`VehicleDisarmedInFlight` with where it happened.
+before the error propagates; Ctrl-C in flight lands first and re-raises KeyboardInterrupt, and so does a bug. In
+the air, a lost link is ridden out: the autopilot's failsafe owns the vehicle meanwhile; when the link comes back
+within ``link_lost_timeout_s`` the mission reads the real state, takes control back and flies on from where the
+vehicle is (replanning if it is off the path). A mode we did not ask for is taken back at once (bounded); a
+pilot's mode (manual, position, altitude) that no failsafe explains is handed over. A vehicle found landed and
+disarmed is never taken off again. One that disarms between takeoff and touchdown is not commanded any more.
 """
 
 from __future__ import annotations
 
-import enum
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 
-from skyroute.flight.path import SmoothPath, leg_headings, path_length_m, smooth_path
 from skyroute.frames import Geodetic, LocalNED
 
+from . import follower, preflight
+from .errors import (
+    ArmingFailed,
+    ControlTakenOver,
+    FlightAborted,
+    LandedMeanwhile,
+    LinkLostInFlight,
+    MissionError,
+    NoPathFound,
+    NotReady,
+    PlanningFailed,
+    VehicleDisarmedInFlight,
+)
+from .landing import LandingMixin
+from .path import SmoothPath, leg_headings, path_length_m, smooth_path
+from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, SurfaceFn, Vehicle
+from .recovery import RecoveryMixin, _Abort, _Resumed
+from .states import AIRBORNE_STATES, TRANSITIONS, IllegalTransition, MissionEvent, MissionState, next_state
+
+__all__ = [  # the mission's vocabulary, importable from here
+    "TRANSITIONS", "ArmingFailed", "ControlTakenOver", "FlightAborted", "IllegalTransition", "LandedMeanwhile",
+    "LinkLostInFlight", "Mission", "MissionError", "MissionEvent", "MissionResult", "MissionState", "NoPathFound",
+    "NotReady", "PlanningFailed", "Vehicle", "VehicleDisarmedInFlight", "next_state",
+]
 log = logging.getLogger(__name__)
-
-
-# ------------------------------------------------------------------------------------------ state machine
-class MissionState(enum.Enum):
-    MANUAL = "manual"  # on the ground, disarmed, not under our control (start and normal end)
-    ARMING = "arming"
-    PLANNING = "planning"
-    TAKEOFF = "takeoff"
-    WAYPOINT = "waypoint"
-    LANDING = "landing"
-    DISARMING = "disarming"
-    FAILED = "failed"  # terminal: we could not bring the vehicle back to MANUAL (link lost, could not land/disarm,
-    #                     the vehicle disarmed before touchdown)
-
-
-class MissionEvent(enum.Enum):
-    START = "start"
-    ARMED = "armed"
-    ARM_FAILED = "arm failed"  # never armed: nothing to undo
-    PLANNED = "planned"
-    NO_PATH = "no path"
-    TAKEOFF_DONE = "takeoff done"
-    WAYPOINT_REACHED = "waypoint reached"
-    GOAL_REACHED = "goal reached"
-    ABORT = "abort"  # a failure or Ctrl-C: land if flying, disarm if armed on the ground
-    LANDED = "landed"
-    LAND_FAILED = "land failed"  # landing could not be commanded: holding
-    DISARMED = "disarmed"
-    DISARM_FAILED = "disarm failed"
-    LINK_LOST = "link lost"
-    DISARMED_IN_FLIGHT = "disarmed in flight"  # between takeoff and touchdown: crashed or killed by the autopilot
-
-
-S, E = MissionState, MissionEvent
-TRANSITIONS: dict[tuple[MissionState, MissionEvent], MissionState] = {
-    (S.MANUAL, E.START): S.ARMING,
-    (S.ARMING, E.ARMED): S.PLANNING,
-    (S.ARMING, E.ARM_FAILED): S.MANUAL,
-    (S.ARMING, E.ABORT): S.DISARMING,
-    (S.PLANNING, E.PLANNED): S.TAKEOFF,
-    (S.PLANNING, E.NO_PATH): S.DISARMING,
-    (S.PLANNING, E.ABORT): S.DISARMING,
-    (S.TAKEOFF, E.TAKEOFF_DONE): S.WAYPOINT,
-    (S.TAKEOFF, E.ABORT): S.LANDING,
-    (S.WAYPOINT, E.WAYPOINT_REACHED): S.WAYPOINT,
-    (S.WAYPOINT, E.GOAL_REACHED): S.LANDING,
-    (S.WAYPOINT, E.ABORT): S.LANDING,
-    (S.LANDING, E.LANDED): S.DISARMING,
-    (S.LANDING, E.LAND_FAILED): S.FAILED,
-    (S.DISARMING, E.DISARMED): S.MANUAL,
-    (S.DISARMING, E.DISARM_FAILED): S.FAILED,
-    **{(state, E.LINK_LOST): S.FAILED
-       for state in (S.ARMING, S.PLANNING, S.TAKEOFF, S.WAYPOINT, S.LANDING, S.DISARMING)},
-    **{(state, E.DISARMED_IN_FLIGHT): S.FAILED for state in (S.TAKEOFF, S.WAYPOINT, S.LANDING)},
-}
-del S, E
-
-
-class IllegalTransition(ValueError):
-    """``event`` is not allowed in ``state``."""
-
-    def __init__(self, state: MissionState, event: MissionEvent):
-        self.state, self.event = state, event
-        super().__init__(f"event {event.name} is not allowed in state {state.name}")
-
-
-def next_state(state: MissionState, event: MissionEvent) -> MissionState:
-    """The state after ``event`` in ``state``, from :data:`TRANSITIONS`.
-
-    >>> next_state(MissionState.MANUAL, MissionEvent.START)
-    <MissionState.ARMING: 'arming'>
-    """
-    try:
-        return TRANSITIONS[(state, event)]
-    except KeyError:
-        raise IllegalTransition(state, event) from None
-
-
-# ---------------------------------------------------------------------------------------------- errors
-class MissionError(Exception):
-    """Base of the mission's errors. ``result`` holds what happened up to the failure."""
-
-    result: MissionResult | None = None
-
-
-class ArmingFailed(MissionError):
-    """The autopilot refused to arm until the readiness timeout; ``reason`` is its latest answer."""
-
-    def __init__(self, timeout_s: float, attempts: int, reason: str):
-        self.timeout_s, self.attempts, self.reason = timeout_s, attempts, reason
-        super().__init__(f"the autopilot refused to arm for {timeout_s:g} s ({attempts} attempts): {reason}")
-
-
-class NoPathFound(MissionError):
-    """The planner found no path; the vehicle was disarmed and never took off."""
-
-
-class PlanningFailed(MissionError):
-    """The planner raised something other than a no-path error; the vehicle was disarmed and never took off."""
-
-
-class FlightAborted(MissionError):
-    """A failure after takeoff; the message says what failed and whether the vehicle landed or is holding."""
-
-
-class VehicleDisarmedInFlight(FlightAborted):
-    """The vehicle disarmed between takeoff and touchdown: crashed, or the autopilot killed the motors.
-
-    Also raised when it disarmed on the ground before the goal (e.g. it came down on a roof). Nothing is commanded
-    after it: a disarmed vehicle cannot be landed. ``position`` is its map position (``down_m`` = -altitude above
-    home), ``on_ground`` what the autopilot said, ``state`` the mission state when it was noticed.
-    """
-
-    def __init__(self, state: MissionState, position: LocalNED, on_ground: bool, context: str = ""):
-        self.state, self.position, self.on_ground = state, position, on_ground
-        where = (f"at map position {position.north_m:.1f} N, {position.east_m:.1f} E, "
-                 f"{position.altitude_m:.1f} m above home")
-        if on_ground:
-            what = (f"the vehicle disarmed on the ground in state {state.name}, before reaching the goal "
-                    f"(crashed or came down short, e.g. on a roof) {where}")
-        else:
-            what = (f"the vehicle disarmed in the air in state {state.name} (crashed or killed by the autopilot) "
-                    f"{where}")
-        super().__init__(f"{context}; then {what}" if context else what)
-
-
-class LinkLostInFlight(MissionError):
-    """The link stayed lost for ``link_lost_timeout_s``; the autopilot's failsafe owns the vehicle."""
-
-
-# ------------------------------------------------------------------------------------------- interfaces
-class Telemetry(Protocol):
-    """The telemetry fields the mission reads (``vehicle.Telemetry`` has them; SI units, autopilot local NED)."""
-
-    armed: bool
-    north_m: float
-    east_m: float
-    down_m: float
-    local_v_north_mps: float
-    local_v_east_mps: float
-    local_v_down_mps: float
-
-    @property
-    def on_ground(self) -> bool: ...
-
-
-class Vehicle(Protocol):
-    """What the mission needs from a vehicle (``vehicle.MavlinkVehicle`` implements it)."""
-
-    @property
-    def telemetry(self) -> Telemetry: ...
-
-    @property
-    def link_ok(self) -> bool: ...
-
-    def map_offset(self, map_origin: Geodetic) -> LocalNED: ...
-
-    def arm(self) -> None: ...
-
-    def disarm(self) -> None: ...
-
-    def takeoff(self, altitude_m: float) -> LocalNED: ...
-
-    def goto_local(self, north_m: float, east_m: float, down_m: float, yaw_rad: float,
-                   velocity_ned: tuple[float, float, float] | None = None) -> None: ...
-
-    def land(self) -> None: ...
-
-    def hold(self) -> None: ...
-
-    def release_control(self) -> None: ...
-
-
-PlanFn = Callable[[float, float], np.ndarray]
+E, S = MissionEvent, MissionState
 
 
 @dataclass
@@ -215,9 +70,10 @@ class MissionResult:
     ``planned_length_m`` counts the climb from the start to the first waypoint, the waypoint polyline and the
     descent from the last waypoint to the ground; ``flown_length_m`` is the 3D length of ``track`` (rows
     ``[time_s, north_m, east_m, altitude_m]`` from the takeoff command to touchdown). ``landing_error_m`` is the
-    horizontal distance from the touchdown point to the last waypoint. ``flight_time_s`` runs from the takeoff
-    command to touchdown in the autopilot's clock (LOCAL_POSITION_NED time since boot) when it reports one, so it
-    is simulated time against a sped-up simulator; ``track`` times are our own monotonic clock.
+    horizontal distance from the touchdown point to the goal itself (not the planner's cell). ``airborne_s`` runs
+    from liftoff (0.1 m above the start) to touchdown and ``flight_time_s`` from the takeoff command to
+    touchdown, both in the autopilot's clock when it reports one (simulated time against a sped-up simulator),
+    like the simulator's ``airborne_time_s``; ``track`` times are our own monotonic clock.
     """
 
     final_state: MissionState
@@ -226,71 +82,76 @@ class MissionResult:
     planned_length_m: float = math.nan
     flown_length_m: float = math.nan
     flight_time_s: float = math.nan
+    airborne_s: float = math.nan
     landing_error_m: float = math.nan
+    recoveries: int = 0
     track: np.ndarray = field(default_factory=lambda: np.empty((0, 4)))
     history: list[tuple[MissionState, MissionEvent, MissionState]] = field(default_factory=list)
 
     def summary(self) -> str:
-        """One line: planned length, flown length, flight time, landing error."""
-        return (f"planned {self.planned_length_m:.1f} m, flown {self.flown_length_m:.1f} m, "
-                f"flight time {self.flight_time_s:.1f} s, landing error {self.landing_error_m:.2f} m")
+        """One line: planned length, flown length, airborne time, landing error (to the goal)."""
+        text = (f"planned {self.planned_length_m:.1f} m, flown {self.flown_length_m:.1f} m, airborne "
+                f"{self.airborne_s:.1f} s, landing error {self.landing_error_m:.2f} m from the goal")
+        return text + (f", {self.recoveries} recoveries" if self.recoveries else "")
 
 
-# ------------------------------------------------------------------------------------------------ mission
-#: Remaining path (m) from which the last waypoint is commanded as a plain position (no feed-forward), or earlier
-#: once the vehicle needs all of the remaining path to brake at ``accel_mps2`` (it lags the schedule): at the
-#: default 3 m/s^2 the schedule is down to sqrt(2 * 3 * 1) = 2.4 m/s there, and the autopilot brakes the rest.
-FINAL_APPROACH_M = 1.0
-
-
-class _Abort(Exception):
-    """Internal: a timeout or refusal during flight that must end in a landing."""
-
-
-class Mission:
+class Mission(RecoveryMixin, LandingMixin):
     """Fly ``plan_fn``'s waypoints with ``vehicle``; see the module docstring for the flow and the failures.
 
     Parameters
     ----------
     vehicle : Vehicle
         Connected vehicle; the mission never closes it.
-    plan_fn : callable ``(start_north_m, start_east_m) -> ndarray (K, 4)``
-        Map-frame waypoints ``[north_m, east_m, altitude_m, heading_rad]``; called after arming. Altitude NaN
-        means ``altitude_m``. The heading column is ignored: the mission flies along each leg.
+    plan_fn : PlanFn
+        ``(start_north_m, start_east_m) -> ndarray (K, 4)`` map-frame waypoints, called before arming (and again
+        from the air to replan after an outage). Altitude NaN means ``altitude_m``; headings are recomputed.
     altitude_m : float
-        Flight altitude above home (m), for waypoints without one.
+        Flight altitude above the map's ground (m), for waypoints without one.
     map_origin : Geodetic
-        The map's lat0/lon0 (alt 0).
-    no_path_errors : tuple of exception types
-        What ``plan_fn`` raises when there is no path (e.g. ``skyroute.planning.errors.NoPathError``).
+        The map's lat0/lon0.
     vehicle_errors : tuple of exception types
         What vehicle calls raise on refusal/timeout (e.g. ``vehicle.VehicleError``): arming is retried on these
         and a flight that raises them lands. Required: anything else (a bug) propagates as itself.
+    no_path_errors : tuple of exception types
+        What ``plan_fn`` raises when there is no path.
+    goal_ne : (float, float), optional
+        The goal itself (map north, east m), for the landing error; default the last waypoint.
+    surface_fn, ground_amsl_m, clearance_fn : optional
+        The map's surface height (for the altitude datum, see :mod:`.preflight`), or the map ground's AMSL
+        altitude given outright; the clearance along a straight line (bounds the last command, see
+        :mod:`.follower`).
+    progress : ProgressFn, optional
+        Receives one short line at each step, and every ``progress_every_s`` while waiting or flying.
+    arm_timeout_s : float
+        How long to wait for the vehicle to get ready and to keep asking it to arm.
+    link_lost_timeout_s : float
+        How long to wait for a link lost in flight to come back before leaving the vehicle to its failsafe.
     corner_cut_m, cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps : float
-        The flight path (:func:`smooth_path`): corners rounded by arcs at most ``corner_cut_m`` inside the planned
-        legs, flown at ``cruise_mps`` on straights, ``sqrt(lateral_accel_mps2 * r)`` on an arc of radius r, at most
-        ``vertical_mps`` vertically, braking at ``accel_mps2``. Defaults suit the sim's PX4/ArduPilot limits
-        (10 m/s, 4 m/s^2); keep them below the autopilot's own (MPC_XY_VEL_MAX/MPC_ACC_HOR, WPNAV_SPEED/ACCEL).
+        The flight path (:func:`~.path.smooth_path`), fitted within the autopilot's own limits before flight.
     lead_s, velocity_lag_s : float
-        Steering: the command is the path point nearest to where the vehicle will be ``lead_s`` (autopilot time:
-        telemetry and link latency) plus one poll from now, with the scheduled velocity ``velocity_lag_s``
-        further on (the autopilot's velocity loop lags by about that much) as a feed-forward.
+        Steering (:func:`~.follower.steer`): the autopilot's response time on top of the link's round trip;
+        how far ahead the feed-forward velocity is taken.
     clock, sleep : callables
         Injected for tests (monotonic seconds; sleep seconds).
     """
 
     def __init__(self, vehicle: Vehicle, plan_fn: PlanFn, *, altitude_m: float, map_origin: Geodetic,
-                 no_path_errors: tuple[type[BaseException], ...] = (NoPathFound,),
                  vehicle_errors: tuple[type[BaseException], ...],
+                 no_path_errors: tuple[type[BaseException], ...] = (NoPathFound,),
+                 goal_ne: Sequence[float] | None = None, surface_fn: SurfaceFn | None = None,
+                 ground_amsl_m: float | None = None, clearance_fn: ClearanceFn | None = None,
+                 progress: ProgressFn | None = None, progress_every_s: float = 5.0,
                  arm_timeout_s: float = 60.0, arm_retry_s: float = 1.0,
                  takeoff_timeout_s: float = 60.0, leg_timeout_s: float = 60.0, min_speed_mps: float = 1.0,
                  landing_timeout_s: float = 120.0, disarm_timeout_s: float = 15.0,
-                 link_lost_timeout_s: float = 30.0,
-                 goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, altitude_tolerance_m: float = 1.0,
+                 link_lost_timeout_s: float = 30.0, control_retries: int = 3, max_recoveries: int = 10,
+                 resume_off_path_m: float = 2.0,
+                 goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, settle_s: float = 3.0,
+                 trim_gain: float = 0.4, max_trim_m: float = 1.5, stuck_mps: float = 1.0, stuck_s: float = 3.0,
+                 altitude_tolerance_m: float = 1.0,
                  corner_cut_m: float = 0.5, cruise_mps: float = 10.0, accel_mps2: float = 3.0,
                  lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5, lead_s: float = 0.2,
-                 velocity_lag_s: float = 0.15,
-                 poll_s: float = 0.02, track_interval_s: float = 0.2,
+                 velocity_lag_s: float = 0.15, poll_s: float = 0.02, track_interval_s: float = 0.2,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
         if not altitude_m > 0:
             raise ValueError(f"altitude_m must be > 0, got {altitude_m}")
@@ -298,24 +159,37 @@ class Mission:
         self.altitude_m, self.map_origin = float(altitude_m), map_origin
         self.no_path_errors = tuple(no_path_errors) + (NoPathFound,)
         self.vehicle_errors = tuple(vehicle_errors)
+        self.goal_ne = None if goal_ne is None else (float(goal_ne[0]), float(goal_ne[1]))
+        self.surface_fn, self.ground_amsl_m, self.clearance_fn = surface_fn, ground_amsl_m, clearance_fn
+        self.progress = progress or (lambda line: None)
+        self.progress_every_s = progress_every_s
         self.arm_timeout_s, self.arm_retry_s = arm_timeout_s, arm_retry_s
         self.takeoff_timeout_s, self.leg_timeout_s, self.min_speed_mps = takeoff_timeout_s, leg_timeout_s, min_speed_mps
         self.landing_timeout_s, self.disarm_timeout_s = landing_timeout_s, disarm_timeout_s
-        self.link_lost_timeout_s = link_lost_timeout_s
-        self.goal_tolerance_m, self.stop_speed_mps = goal_tolerance_m, stop_speed_mps
-        self.altitude_tolerance_m = altitude_tolerance_m
-        self.corner_cut_m, self.cruise_mps, self.accel_mps2 = corner_cut_m, cruise_mps, accel_mps2
-        self.lateral_accel_mps2, self.vertical_mps, self.lead_s = lateral_accel_mps2, vertical_mps, lead_s
-        self.velocity_lag_s = velocity_lag_s
+        self.link_lost_timeout_s, self.control_retries = link_lost_timeout_s, control_retries
+        self.max_recoveries, self.resume_off_path_m = max_recoveries, resume_off_path_m
+        self.goal_tolerance_m, self.stop_speed_mps, self.settle_s = goal_tolerance_m, stop_speed_mps, settle_s
+        self._near_goal_since = math.nan
+        self.trim_gain, self.max_trim_m = trim_gain, max_trim_m
+        self.stuck_mps, self.stuck_s, self._stuck_since = stuck_mps, stuck_s, math.nan
+        self._trim_m = np.zeros(2)
+        self.altitude_tolerance_m, self.corner_cut_m = altitude_tolerance_m, corner_cut_m
+        self.speeds = preflight.Speeds(cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps)
+        self.lead_s, self.velocity_lag_s, self.brake_lag_s = lead_s, velocity_lag_s, 0.0
         self.poll_s, self.track_interval_s = poll_s, track_interval_s
         self.clock, self.sleep = clock, sleep
         self.state = MissionState.MANUAL
         self.result = MissionResult(final_state=self.state)
+        self.limits: Limits | None = None
         self._offset = LocalNED(0.0, 0.0, 0.0)
+        self._ground_amsl_m = 0.0
+        self.frame_jump_m, self._frame_jumps, self._frame_checked_s = 3.0, 0, -math.inf
         self._track: list[tuple[float, float, float, float]] = []
-        self._takeoff_s = math.nan
-        self._takeoff_autopilot_s = math.nan
+        self._takeoff_s = self._takeoff_autopilot_s = self._liftoff_autopilot_s = math.nan
+        self._start_altitude_m = 0.0
         self._land_commanded = False
+        self._progress_s = 0.0  # arc length reached on the current path
+        self._last_line_s = -math.inf
 
     # ------------------------------------------------------------------------------------------ plumbing
     def _fire(self, event: MissionEvent) -> MissionState:
@@ -325,8 +199,17 @@ class Mission:
         self.state = self.result.final_state = new
         return new
 
+    def _say(self, line: str, *, every: bool = False) -> None:
+        """A progress line (``every``: at most one per ``progress_every_s``)."""
+        now = self.clock()
+        if every and now - self._last_line_s < self.progress_every_s:
+            return
+        self._last_line_s = now
+        log.info("progress: %s", line)
+        self.progress(line)
+
     def _map_position(self) -> LocalNED:
-        """Vehicle position in the map frame (down = -altitude above home)."""
+        """Vehicle position in the map frame (down = -altitude above the map's ground)."""
         t = self.vehicle.telemetry
         return LocalNED(t.north_m + self._offset.north_m, t.east_m + self._offset.east_m,
                         t.down_m + self._offset.down_m)
@@ -336,66 +219,90 @@ class Mission:
                         -altitude_m - self._offset.down_m)
 
     def _autopilot_time_s(self) -> float:
-        """The autopilot's time since boot (s), NaN if it does not say: flight times are in its time, which
-        also holds against a simulator running faster than the wall clock."""
+        """The autopilot's time since boot (s), NaN if it does not say (flight times are in its clock)."""
         return float(getattr(self.vehicle.telemetry, "local_time_s", math.nan))
 
     def _sample(self, force: bool = False) -> None:
         now = self.clock()
+        p = self._map_position()
+        if math.isnan(self._liftoff_autopilot_s) and self.state is S.TAKEOFF \
+                and p.altitude_m > self._start_altitude_m + 0.1:
+            self._liftoff_autopilot_s = self._autopilot_time_s()
         if force or not self._track or now - self._track[-1][0] >= self.track_interval_s:
-            p = self._map_position()
             self._track.append((now, p.north_m, p.east_m, p.altitude_m))
 
     def _tick(self) -> None:
-        """One poll: wait, record the track, notice a lost link and a vehicle that disarmed in flight."""
+        """One poll: wait, notice a lost link or a lost mode, record the track, notice a disarm in flight."""
         self.sleep(self.poll_s)
         if not self.vehicle.link_ok:
             self._link_lost()
         self._sample()
         self._check_armed()
+        self._check_local_frame()
+        if self.state in (S.TAKEOFF, S.WAYPOINT) and not self.vehicle.in_control:
+            self._recover(f"the autopilot left our flight mode for {self.vehicle.telemetry.mode or '?'}",
+                          link_lost=False)
+
+    def _check_local_frame(self) -> None:
+        """Notice the autopilot's local frame jumping under us (an EKF reset, an origin moved to where it armed):
+        the offset from the latest positions differs by ``frame_jump_m`` or more twice ``check_s`` apart. Then
+        the map is re-tied and the streamed setpoint moved with the frame, so it still means the same place."""
+        now = self.clock()
+        if now - self._frame_checked_s < 0.25 or not hasattr(self.vehicle, "map_offset_now"):
+            return
+        self._frame_checked_s = now
+        instant = self.vehicle.map_offset_now(self.map_origin, self._ground_amsl_m)
+        if instant is None:
+            return
+        delta = np.subtract(instant, self._offset)
+        if float(np.linalg.norm(delta)) < self.frame_jump_m:
+            self._frame_jumps = 0
+            return
+        self._frame_jumps += 1
+        if self._frame_jumps < 2:  # once may be a glitch of one sample
+            return
+        self._frame_jumps = 0
+        self._retie(instant)
+
+    def _retie(self, offset: LocalNED) -> None:
+        """Take ``offset`` as the map offset if it moved by ``frame_jump_m`` or more, and move the streamed
+        setpoint with the frame."""
+        delta = np.subtract(offset, self._offset)
+        if float(np.linalg.norm(delta)) < self.frame_jump_m:
+            return
+        log.warning("the autopilot's local frame moved by (%.1f, %.1f, %.1f) m: re-tied to the map", *delta)
+        self._say(f"the autopilot's local frame moved by {float(np.linalg.norm(delta)):.1f} m (an estimator reset "
+                  "or a new origin): re-tied to the map")
+        self._offset = LocalNED(*(float(v) for v in offset))
+        shift = getattr(self.vehicle, "shift_setpoint", None)
+        if shift is not None:
+            shift(*(-float(v) for v in delta))
 
     def _check_armed(self, context: str = "") -> None:
-        """Raise :class:`VehicleDisarmedInFlight` if the vehicle disarmed between takeoff and touchdown.
-
-        In TAKEOFF and WAYPOINT any disarm is one (on the ground too: it came down short of the goal); in LANDING
-        a disarm on the ground is the autopilot's auto-disarm after touchdown. Fires DISARMED_IN_FLIGHT (-> FAILED)
-        and stops streaming setpoints, so a re-armed vehicle does not fly off to the last one.
-        """
-        if self.state not in (MissionState.TAKEOFF, MissionState.WAYPOINT, MissionState.LANDING):
+        """Raise :class:`VehicleDisarmedInFlight` if the vehicle disarmed between takeoff and touchdown (in
+        LANDING a disarm on the ground is the autopilot's auto-disarm after touchdown)."""
+        if self.state not in AIRBORNE_STATES:
             return
         t = self.vehicle.telemetry
         if t.armed:
             return
         on_ground = bool(t.on_ground)
-        if on_ground and self.state is MissionState.LANDING:
+        if on_ground and self.state is S.LANDING:
             return
         state, position = self.state, self._map_position()
         self._sample(force=True)
         log.error("the vehicle disarmed %s in state %s at map (%.1f N, %.1f E, %.1f m)",
                   "on the ground" if on_ground else "in the air", state.name, position.north_m, position.east_m,
                   position.altitude_m)
-        self._fire(MissionEvent.DISARMED_IN_FLIGHT)
+        self._fire(E.DISARMED_IN_FLIGHT)
+        self._release()
+        raise VehicleDisarmedInFlight(state, position, on_ground, context)
+
+    def _release(self) -> None:
         try:
             self.vehicle.release_control()
         except self.vehicle_errors as exc:
-            log.warning("could not release control after the disarm: %s", exc)
-        raise VehicleDisarmedInFlight(state, position, on_ground, context)
-
-    def _link_lost(self) -> None:
-        """Wait up to ``link_lost_timeout_s`` for the link; if it comes back, abort (land); else fail."""
-        log.error("link lost in state %s; waiting up to %g s for it", self.state.name, self.link_lost_timeout_s)
-        deadline = self.clock() + self.link_lost_timeout_s
-        while self.clock() < deadline:
-            self.sleep(self.poll_s)
-            if self.vehicle.link_ok:
-                log.warning("link back after an outage")
-                if self.state is MissionState.LANDING:
-                    return  # keep landing
-                raise _Abort("the link was lost and came back")
-        state = self.state
-        self._fire(MissionEvent.LINK_LOST)
-        raise LinkLostInFlight(f"link lost in state {state.name} for {self.link_lost_timeout_s:g} s; "
-                               "the autopilot's failsafe now owns the vehicle")
+            log.warning("could not release control: %s", exc)
 
     def _finish(self, error: MissionError | None = None) -> MissionResult:
         r = self.result
@@ -417,28 +324,27 @@ class Mission:
 
         Raises
         ------
-        ArmingFailed
-            Arming refused until ``arm_timeout_s`` (never armed).
-        NoPathFound, PlanningFailed
-            The planner failed; the vehicle was disarmed and never took off.
+        NotReady, ArmingFailed, NoPathFound, PlanningFailed
+            Before takeoff; the vehicle was never armed (or was disarmed).
         FlightAborted
             Something failed after takeoff; the vehicle landed (or holds, if landing could not be commanded).
         VehicleDisarmedInFlight
-            A FlightAborted: the vehicle disarmed after takeoff and before touchdown (crash, or the autopilot
-            killed it), or on the ground short of the goal; final state FAILED, nothing more was commanded.
+            A FlightAborted: the vehicle disarmed after takeoff and before touchdown; nothing more was commanded.
+        LandedMeanwhile, ControlTakenOver
+            After an outage the vehicle had landed and disarmed; a pilot took it over.
         LinkLostInFlight
             The link stayed lost; the autopilot's failsafe owns the vehicle.
         KeyboardInterrupt, or any exception that is not a MissionError nor in ``vehicle_errors`` (a bug)
             Re-raised after landing (in flight) or disarming (on the ground), unless making the vehicle safe
-            raised LinkLostInFlight or VehicleDisarmedInFlight, which then replaces it.
+            raised a MissionError, which then replaces it.
 
         Every MissionError carries ``.result`` (the partial :class:`MissionResult`).
         """
-        self._offset = self.vehicle.map_offset(self.map_origin)
         try:
-            self._fire(MissionEvent.START)
-            self._arm()
+            self._fire(E.START)
+            self._preflight()
             waypoints = self._plan()
+            self._arm()
             self._fly(waypoints)
         except MissionError as exc:
             self._finish(exc)
@@ -454,8 +360,7 @@ class Mission:
         return self._finish()
 
     def _abandon(self, why: str) -> None:
-        """Make the vehicle safe after Ctrl-C or a bug; a MissionError from that (lost link, disarm in flight)
-        replaces the original exception, with ``why`` in its message."""
+        """Make the vehicle safe after Ctrl-C or a bug; a MissionError from that replaces the original."""
         try:
             outcome = self._make_safe(why)
         except MissionError as exc:
@@ -464,47 +369,58 @@ class Mission:
         log.warning("%s: %s", why, outcome)
         self._finish()
 
-    def _arm(self) -> None:
+    # ------------------------------------------------------------------------------------------ on the ground
+    def _preflight(self) -> None:
         deadline = self.clock() + self.arm_timeout_s
-        attempts, reason = 0, ""
-        while True:
-            attempts += 1
-            try:
-                self.vehicle.arm()
+        self._arm_deadline_s = deadline
+        missing = preflight.wait_until_ready(self.vehicle, deadline_s=deadline, clock=self.clock,
+                                             sleep=self.sleep, progress=self._say, every_s=self.progress_every_s)
+        if missing == "the link was lost":
+            self._fire(E.LINK_LOST)
+            raise LinkLostInFlight("the link was lost before takeoff; the vehicle is on the ground, never armed")
+        if missing is not None:
+            self._fire(E.NOT_READY)
+            raise NotReady(f"the vehicle did not get ready within {self.arm_timeout_s:g} s: {missing}")
+        while True:  # a booting estimator's vertical speed can wander: give "on the ground" until the deadline
+            t = self.vehicle.telemetry
+            if not t.armed and t.on_ground:
                 break
-            except self.vehicle_errors as exc:
-                reason = str(exc)
-                if not self.vehicle.link_ok:
-                    self._link_lost_on_ground()
-                remaining_s = deadline - self.clock()
-                if remaining_s <= 0:
-                    self._fire(MissionEvent.ARM_FAILED)
-                    raise ArmingFailed(self.arm_timeout_s, attempts, reason) from exc
-                log.info("arming refused (%s); retrying", reason)
-                self.sleep(min(self.arm_retry_s, remaining_s))
-        self._fire(MissionEvent.ARMED)
+            if self.clock() >= deadline:
+                self._fire(E.NOT_READY)
+                raise NotReady("the vehicle is " + ("armed" if t.armed else "in the air")
+                               + ": a mission starts from a vehicle disarmed on the ground")
+            self._say("waiting for the vehicle to stand disarmed on the ground", every=True)
+            self.sleep(0.2)
+        if self.ground_amsl_m is None:
+            ground, surface = preflight.ground_amsl(self.vehicle, self.map_origin, self.surface_fn)
+        else:
+            ground, surface = float(self.ground_amsl_m), math.nan
+        self._offset = self.vehicle.map_offset(self.map_origin, ground)
+        self._ground_amsl_m = ground
+        self._say(preflight.describe_offset(self._offset, ground, surface if math.isfinite(surface) else 0.0))
+        self.limits = self.vehicle.flight_limits()
+        self.speeds = preflight.fit_speeds(self.speeds, self.limits)
+        response_s = float(getattr(self.limits, "response_s", math.nan))
+        if math.isfinite(response_s):  # brake as early as the autopilot is slow to slow down
+            self.brake_lag_s = max(self.brake_lag_s, response_s)
+        if self.limits.leaves_flying:
+            self._say(f"warning: {self.limits.link_loss}")
+        self._fire(E.READY)
 
-    def _link_lost_on_ground(self) -> None:
-        self._fire(MissionEvent.LINK_LOST)
-        raise LinkLostInFlight(f"link lost in state {MissionState.ARMING.name}; the vehicle is on the ground")
-
-    def _plan(self) -> np.ndarray:
-        start = self._map_position()
-        log.info("planning from map (%.1f N, %.1f E)", start.north_m, start.east_m)
+    def _plan(self, start: LocalNED | None = None) -> np.ndarray:
+        start = self._map_position() if start is None else start
+        self._say(f"planning from map ({start.north_m:.1f} N, {start.east_m:.1f} E) ...")
         try:
             waypoints = np.array(self.plan_fn(start.north_m, start.east_m), dtype=float).reshape(-1, 4)
         except self.no_path_errors as exc:
-            self._fire(MissionEvent.NO_PATH)
-            self._disarm_on_ground()
-            raise NoPathFound(f"no path: {exc}; disarmed, never took off") from exc
+            self._fire(E.NO_PATH)
+            raise NoPathFound(f"no path: {exc}; never armed") from exc
         except Exception as exc:
-            self._fire(MissionEvent.ABORT)
-            self._disarm_on_ground()
-            raise PlanningFailed(f"planning failed: {exc!r}; disarmed, never took off") from exc
+            self._fire(E.ABORT)
+            raise PlanningFailed(f"planning failed: {exc!r}; never armed") from exc
         if len(waypoints) == 0:
-            self._fire(MissionEvent.NO_PATH)
-            self._disarm_on_ground()
-            raise NoPathFound("the planner returned no waypoints; disarmed, never took off")
+            self._fire(E.NO_PATH)
+            raise NoPathFound("the planner returned no waypoints; never armed")
         waypoints[np.isnan(waypoints[:, 2]), 2] = self.altitude_m
         waypoints[:, 3] = leg_headings(waypoints)
         r = self.result
@@ -513,12 +429,43 @@ class Mission:
                               + path_length_m(waypoints) + waypoints[-1, 2])
         log.info("planned %d waypoints, %.1f m: %s", len(waypoints), r.planned_length_m,
                  " ".join(f"({n:.1f} N, {e:.1f} E, {a:.1f} m)" for n, e, a in waypoints[:, :3]))
-        self._fire(MissionEvent.PLANNED)
+        self._fire(E.PLANNED)
         return waypoints
 
-    def _disarm_on_ground(self) -> None:
-        self._disarm()
-        self._fire(MissionEvent.DISARMED)
+    def _arm(self) -> None:
+        """Select the flight mode and arm; retry what waiting can change until the readiness deadline."""
+        attempts = 0
+        while True:
+            attempts += 1
+            try:
+                self.vehicle.prepare_flight()
+                self.vehicle.arm()
+                break
+            except self.vehicle_errors as exc:
+                if not self.vehicle.link_ok:
+                    self._fire(E.LINK_LOST)
+                    raise LinkLostInFlight("the link was lost while arming; the vehicle is on the ground") from exc
+                ready = self.vehicle.readiness().ready
+                if getattr(exc, "permanent", False) and ready:
+                    self._arm_failed()
+                    raise ArmingFailed("and says it is ready, so waiting will not help", attempts, str(exc)) from exc
+                if self.clock() >= self._arm_deadline_s:
+                    self._arm_failed()
+                    raise ArmingFailed(f"for {self.arm_timeout_s:g} s", attempts, str(exc)) from exc
+                self._say(f"arming refused ({exc}); retrying", every=True)
+                self.sleep(min(self.arm_retry_s, max(self._arm_deadline_s - self.clock(), 0.0)))
+        self._fire(E.ARMED)
+        if hasattr(self.vehicle, "map_offset_now"):  # a frame that moved at arming (a new origin) before takeoff
+            self._retie(self.vehicle.map_offset(self.map_origin, self._ground_amsl_m))
+
+    def _arm_failed(self) -> None:
+        self._release()
+        if self.vehicle.telemetry.armed:
+            self._fire(E.ABORT)
+            self._disarm()
+            self._fire(E.DISARMED)
+        else:
+            self._fire(E.ARM_FAILED)
 
     def _disarm(self) -> None:
         deadline = self.clock() + self.disarm_timeout_s
@@ -527,7 +474,7 @@ class Mission:
                 self.vehicle.disarm()
             except self.vehicle_errors as exc:
                 if self.clock() >= deadline:
-                    self._fire(MissionEvent.DISARM_FAILED)
+                    self._fire(E.DISARM_FAILED)
                     raise MissionError(f"could not disarm within {self.disarm_timeout_s:g} s: {exc}") from exc
                 log.info("disarm refused (%s); retrying", exc)
                 self.sleep(0.5)
@@ -535,8 +482,17 @@ class Mission:
     # ------------------------------------------------------------------------------------------- flight
     def _fly(self, waypoints: np.ndarray) -> None:
         try:
-            self._takeoff(float(waypoints[0, 2]))
-            self._follow(waypoints)
+            path = waypoints
+            try:
+                self._takeoff(float(waypoints[0, 2]))
+            except _Resumed:
+                path = self._resume_path(waypoints)
+            while True:
+                try:
+                    self._follow(path)
+                    break
+                except _Resumed:
+                    path = self._resume_path(path)
             self._land()
         except MissionError:
             raise
@@ -547,84 +503,113 @@ class Mission:
         self.result.completed = True
 
     def _takeoff(self, altitude_m: float) -> None:
-        if not self.vehicle.link_ok:
-            self._link_lost()
-        if not self.vehicle.telemetry.armed:  # e.g. PX4 disarms after ~10 s on the ground while we planned
-            log.warning("the vehicle disarmed while planning; re-arming")
-            self.vehicle.arm()
         here = self._map_position()
-        self._takeoff_s = self.clock()
-        self._takeoff_autopilot_s = self._autopilot_time_s()
+        self._start_altitude_m = here.altitude_m
+        self._takeoff_s, self._takeoff_autopilot_s = self.clock(), self._autopilot_time_s()
         self._sample(force=True)
         self.vehicle.takeoff(altitude_m - here.altitude_m)
+        self._say(f"taking off to {altitude_m:.1f} m")
         deadline = self.clock() + self.takeoff_timeout_s
         while self._map_position().altitude_m < altitude_m - self.altitude_tolerance_m:
             if self.clock() > deadline:
                 raise _Abort(f"takeoff did not reach {altitude_m:.1f} m within {self.takeoff_timeout_s:g} s")
             self._tick()
         log.info("takeoff done at %.1f m", self._map_position().altitude_m)
-        self._fire(MissionEvent.TAKEOFF_DONE)
+        self._fire(E.TAKEOFF_DONE)
 
     def _follow(self, waypoints: np.ndarray) -> None:
-        """Fly the rounded path through ``waypoints`` (see :func:`smooth_path`) and stop at the last one.
-
-        Each poll predicts where the vehicle will be while this command is the autopilot's latest (``lead_s`` of
-        autopilot latency plus one poll, in autopilot time, at its current velocity) and commands the path point
-        nearest to that, with the scheduled velocity along the path as a feed-forward: the autopilot flies the
-        schedule and its position loop only corrects the cross-track error, so it neither brakes at each
-        waypoint nor cuts more than ``corner_cut_m`` (plus its tracking error) off a corner. Near the end (see
-        :data:`FINAL_APPROACH_M`) the command is the last waypoint alone: the autopilot's position loop stops
-        there.
-        """
-        path = smooth_path(waypoints, corner_cut_m=self.corner_cut_m, cruise_mps=self.cruise_mps,
-                           accel_mps2=self.accel_mps2, lateral_accel_mps2=self.lateral_accel_mps2,
-                           vertical_mps=self.vertical_mps)
+        """Fly the rounded path through ``waypoints`` (see :func:`~.follower.steer`) and stop at the last one."""
+        s = self.speeds
+        path = smooth_path(waypoints, corner_cut_m=self.corner_cut_m, cruise_mps=s.cruise_mps,
+                           accel_mps2=s.accel_mps2, lateral_accel_mps2=s.lateral_accel_mps2,
+                           vertical_mps=s.vertical_mps)
         last = len(waypoints) - 1
-        s, ref_s, heading = 0.0, 0.0, float(waypoints[0, 3])
+        ref_s, heading = self._progress_s, float(waypoints[0, 3])
+        i = int(np.searchsorted(path.waypoint_s_m, self._progress_s, side="right"))
+        i = min(max(i, 0), last)
         here = self._map_position()
-        i, (deadline, start_s) = 0, self._waypoint_deadline(waypoints[0], (here.north_m, here.east_m))
+        deadline, start_s = self._waypoint_deadline(waypoints[i], (here.north_m, here.east_m))
+        ff_mps, ff_at = 0.0, self.clock()
+        trim_at, self._trim_m = ff_at, np.zeros(2)
+        self._near_goal_since = math.nan
         while True:
             p = self._map_position()
-            s = path.project((p.north_m, p.east_m, p.altitude_m), s)
-            while i < last and s >= path.waypoint_s_m[i] - 1e-6 and self._on_altitude(path, s, p):
-                log.info("waypoint %d/%d reached at (%.1f N, %.1f E, %.1f m)", i, last, p.north_m, p.east_m,
-                         p.altitude_m)
-                self._fire(MissionEvent.WAYPOINT_REACHED)
+            self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), self._progress_s)
+            while i < last and self._progress_s >= path.waypoint_s_m[i] - 1e-6 and self._on_altitude(path, p):
+                self._reached(i, last, path, p)
                 i += 1
                 deadline, start_s = self._waypoint_deadline(waypoints[i], waypoints[i - 1])
             if i == last and self._at_goal(waypoints[last]):
-                log.info("waypoint %d/%d reached at (%.1f N, %.1f E, %.1f m)", i, last, p.north_m, p.east_m,
-                         p.altitude_m)
-                self._fire(MissionEvent.GOAL_REACHED)
+                self._reached(i, last, path, p)
+                self._fire(E.GOAL_REACHED)
                 return
             if self.clock() > deadline:
                 raise _Abort(self._not_reached(i, waypoints[i], i == last, deadline - start_s))
-            # where the vehicle will be, on average, while this command is the latest one the autopilot has
             t = self.vehicle.telemetry
-            ahead_s = self.lead_s + self._autopilot_rate() * self.poll_s
-            predicted = (p.north_m + t.local_v_north_mps * ahead_s, p.east_m + t.local_v_east_mps * ahead_s,
-                         p.altitude_m - t.local_v_down_mps * ahead_s)
-            ref_s = path.project(predicted, max(s, ref_s))
-            speed = math.sqrt(t.local_v_north_mps**2 + t.local_v_east_mps**2 + t.local_v_down_mps**2)
-            remaining_m = path.length_m - s
-            if remaining_m <= max(FINAL_APPROACH_M, speed**2 / (2 * self.accel_mps2)):
-                ref_s = path.length_m  # the autopilot's position loop brakes to the goal from here
-            position, _ = path.point_at(ref_s)
-            # the velocity wanted velocity_lag_s later: the autopilot's velocity loop takes about that long to follow
-            ff_s = min(ref_s + speed * self.velocity_lag_s, path.length_m)
-            tangent = path.point_at(ff_s)[1]
-            if math.hypot(tangent[0], tangent[1]) > 0.1:
-                heading = math.atan2(tangent[1], tangent[0]) % (2 * math.pi)
+            velocity = (t.local_v_north_mps, t.local_v_east_mps, -t.local_v_down_mps)
+            rate = self._autopilot_rate()
+            ahead_s = (self.lead_s + rate * (self.poll_s + float(getattr(self.vehicle, "round_trip_s", 0.0))))
+            now = self.clock()
+            sp = follower.steer(path, s_m=self._progress_s, ref_s_m=ref_s, position=(p.north_m, p.east_m,
+                                p.altitude_m), velocity=velocity, ahead_s=ahead_s, accel_mps2=s.accel_mps2,
+                                velocity_lag_s=self.velocity_lag_s, brake_lag_s=self.brake_lag_s,
+                                heading_rad=heading, limits=self.limits,
+                                clearance_fn=self.clearance_fn, previous_mps=ff_mps, dt_s=rate * (now - ff_at))
+            ref_s, heading = sp.ref_s, sp.heading_rad
+            ff_mps, ff_at = (0.0 if sp.velocity is None else float(np.linalg.norm(sp.velocity))), now
+            position = sp.position
+            if sp.velocity is None and i == last:  # holding over the goal: take out the autopilot's steady offset
+                position = self._trim(waypoints[last], p, t, rate * (now - trim_at))
+            trim_at = now
             target = self._to_local(*position)
-            if ref_s >= path.length_m:
-                self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading)
-            else:
-                # speeding up by at most accel_mps2 over the prediction: a small along-track velocity error leaves
-                # the autopilot's acceleration limit free to correct the cross-track one (e.g. leaving an arc)
-                velocity = tangent * min(path.speed_at(ff_s), speed + self.accel_mps2 * max(ahead_s, 0.1))
-                self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading,
-                                        velocity_ned=(float(velocity[0]), float(velocity[1]), float(-velocity[2])))
+            velocity_ned = None if sp.velocity is None else (float(sp.velocity[0]), float(sp.velocity[1]),
+                                                             float(-sp.velocity[2]))
+            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading, velocity_ned=velocity_ned)
+            self._say(self._flying_line(path, t), every=True)
+            self._check_following(ff_mps, t)
             self._tick()
+
+    def _check_following(self, commanded_mps: float, t) -> None:
+        """A vehicle in our mode that stands still for ``stuck_s`` while told to fly at ``stuck_mps`` or more has
+        stopped following (e.g. an autopilot that dropped our stream without saying so): take control again."""
+        speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
+        if commanded_mps < self.stuck_mps or speed > self.stop_speed_mps:
+            self._stuck_since = math.nan
+            return
+        if math.isnan(self._stuck_since):
+            self._stuck_since = self.clock()
+        elif self.clock() - self._stuck_since >= self.stuck_s:
+            self._stuck_since = math.nan
+            self._recover(f"the vehicle stopped following our setpoints (told {commanded_mps:.1f} m/s, standing "
+                          "still)", link_lost=False, retake=True)
+
+    def _trim(self, goal: np.ndarray, p: LocalNED, t, dt_s: float) -> np.ndarray:
+        """The hold position over ``goal``, moved against the vehicle's steady offset from it (integral action at
+        ``trim_gain``/s, at most ``max_trim_m``; only once it has slowed down, so the approach does not wind it up).
+
+        PX4 SIH hovered 0.4-0.5 m off its setpoint for seconds (measured), then drifted as much again landing."""
+        slow = math.hypot(t.local_v_north_mps, t.local_v_east_mps) < 2.0 * self.stop_speed_mps
+        if slow and math.isfinite(dt_s):
+            error = np.array([goal[0] - p.north_m, goal[1] - p.east_m])
+            self._trim_m = self._trim_m + self.trim_gain * min(dt_s, 0.5) * error
+            norm = float(np.linalg.norm(self._trim_m))
+            if norm > self.max_trim_m:
+                self._trim_m *= self.max_trim_m / norm
+        return np.array([goal[0] + self._trim_m[0], goal[1] + self._trim_m[1], goal[2]])
+
+    def _flying_line(self, path: SmoothPath, t) -> str:
+        to_go = max(path.length_m - self._progress_s, 0.0)
+        return f"flying: {to_go:.0f} m to go at {math.hypot(t.local_v_north_mps, t.local_v_east_mps):.1f} m/s"
+
+    def _reached(self, i: int, last: int, path: SmoothPath, p: LocalNED) -> None:
+        t = self.vehicle.telemetry
+        log.info("waypoint %d/%d reached at (%.1f N, %.1f E, %.1f m)", i, last, p.north_m, p.east_m, p.altitude_m)
+        if i < last:
+            self._say(f"waypoint {i}/{last} reached: {max(path.length_m - self._progress_s, 0):.0f} m to go at "
+                      f"{math.hypot(t.local_v_north_mps, t.local_v_east_mps):.1f} m/s")
+            self._fire(E.WAYPOINT_REACHED)
+        else:
+            self._say(f"goal reached at ({p.north_m:.1f} N, {p.east_m:.1f} E); landing")
 
     def _autopilot_rate(self) -> float:
         """Autopilot seconds per second of our clock since the takeoff command: a sped-up simulator's speedup,
@@ -636,14 +621,13 @@ class Mission:
         return autopilot / elapsed
 
     def _waypoint_deadline(self, wp, previous) -> tuple[float, float]:
-        """``(deadline, now)`` for reaching ``wp`` from now: ``leg_timeout_s`` + the horizontal leg from
-        ``previous`` (north, east, ...) at ``min_speed_mps``."""
+        """``(deadline, now)`` for reaching ``wp``: ``leg_timeout_s`` + the horizontal leg at ``min_speed_mps``."""
         now = self.clock()
         leg_m = math.hypot(wp[0] - previous[0], wp[1] - previous[1])
         return now + self.leg_timeout_s + leg_m / self.min_speed_mps, now
 
-    def _on_altitude(self, path: SmoothPath, s_m: float, p: LocalNED) -> bool:
-        return abs(path.point_at(s_m)[0][2] - p.altitude_m) <= self.altitude_tolerance_m
+    def _on_altitude(self, path: SmoothPath, p: LocalNED) -> bool:
+        return abs(path.point_at(self._progress_s)[0][2] - p.altitude_m) <= self.altitude_tolerance_m
 
     def _not_reached(self, i: int, wp: np.ndarray, is_last: bool, timeout_s: float) -> str:
         """Why waypoint ``i`` timed out: how far off the vehicle is and how fast it still moves."""
@@ -660,91 +644,19 @@ class Mission:
         return why
 
     def _at_goal(self, wp: np.ndarray) -> bool:
-        """At the last waypoint ``wp``: within ``goal_tolerance_m`` horizontally, ``altitude_tolerance_m`` vertically,
-        and slower than ``stop_speed_mps``."""
+        """Over the goal: within ``goal_tolerance_m`` and slower than ``stop_speed_mps``; or settled, within 1.5 x
+        the tolerance for ``settle_s`` (position noise, e.g. PX4's, keeps some vehicles out of the strict box)."""
         p = self._map_position()
         t = self.vehicle.telemetry
         horizontal = math.hypot(wp[0] - p.north_m, wp[1] - p.east_m)
-        vertical = abs(wp[2] - p.altitude_m)
         speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
-        return (horizontal <= self.goal_tolerance_m and vertical <= self.altitude_tolerance_m
-                and speed <= self.stop_speed_mps)
-
-    def _land(self) -> None:
-        """Land here, wait for touchdown, disarm, release control (LANDING -> DISARMING -> MANUAL)."""
-        self.vehicle.land()
-        self._land_commanded = True
-        self._await_touchdown()
-
-    def _await_touchdown(self) -> None:
-        deadline = self.clock() + self.landing_timeout_s
-        self._check_armed()
-        while not self.vehicle.telemetry.on_ground:  # an autopilot that auto-disarms on touchdown says so too
-            if self.clock() > deadline:
-                raise _Abort(f"no touchdown within {self.landing_timeout_s:g} s of the land command")
-            self._tick()
-        self._sample(force=True)
-        r = self.result
-        r.flight_time_s = self._autopilot_time_s() - self._takeoff_autopilot_s
-        if not math.isfinite(r.flight_time_s):  # no autopilot clock: our own
-            r.flight_time_s = self.clock() - self._takeoff_s
-        r.flown_length_m = path_length_m(np.array(self._track)[:, 1:])
-        if len(r.waypoints):
-            p = self._map_position()
-            r.landing_error_m = math.hypot(p.north_m - r.waypoints[-1, 0], p.east_m - r.waypoints[-1, 1])
-        log.info("landed; %s", r.summary())
-        self._fire(MissionEvent.LANDED)
-        self._disarm()
-        self.vehicle.release_control()
-        self._fire(MissionEvent.DISARMED)
-
-    def _make_safe(self, why: str) -> str:
-        """After a failure or Ctrl-C: land if flying (hold if landing fails), disarm if armed on the ground.
-
-        Returns what was done, for the error message. Raises only LinkLostInFlight (the link stayed lost while
-        landing) and VehicleDisarmedInFlight (the vehicle disarmed before touchdown), with ``why`` in the message.
-        """
-        if self.state is MissionState.MANUAL:
-            return "nothing to undo: the vehicle is disarmed and not under our control"
-        if self.state is MissionState.FAILED:
-            return ("the mission had already failed (link lost, landing or disarming failed, or the vehicle disarmed "
-                    "in flight): it may still be in the air, the autopilot's failsafe owns it")
-        if self.state in (MissionState.ARMING, MissionState.PLANNING, MissionState.DISARMING):
-            if self.state is not MissionState.DISARMING:
-                self._fire(MissionEvent.ABORT)
-            try:
-                self._disarm_on_ground()
-            except (MissionError, *self.vehicle_errors) as exc:
-                return f"could not disarm: {exc}"
-            return "disarmed on the ground" if math.isnan(self._takeoff_s) else "landed and disarmed"
-        self._check_armed(why)  # a disarmed vehicle cannot be landed
-        if self.state is not MissionState.LANDING:
-            self._fire(MissionEvent.ABORT)
-        log.warning("%s: landing where we are", why)
-        if not self._land_commanded:
-            try:
-                self.vehicle.land()
-                self._land_commanded = True
-            except self.vehicle_errors as exc:
-                log.error("could not land (%s); holding", exc)
-                self._fire(MissionEvent.LAND_FAILED)
-                try:
-                    self.vehicle.hold()
-                except self.vehicle_errors as hold_exc:
-                    return (f"could not land ({exc}) nor hold ({hold_exc}); "
-                            "the autopilot's failsafe owns the vehicle")
-                return f"could not land ({exc}); holding position"
-        try:
-            self._await_touchdown()
-        except _Abort as exc:
-            self._fire(MissionEvent.LAND_FAILED)
-            return f"landing commanded but not confirmed ({exc}); the autopilot is landing"
-        except LinkLostInFlight as exc:  # not landed: the autopilot's failsafe has it
-            raise LinkLostInFlight(f"{why}; landing commanded, then {exc}") from exc
-        except VehicleDisarmedInFlight as exc:
-            raise VehicleDisarmedInFlight(exc.state, exc.position, exc.on_ground, f"{why}; landing") from exc
-        except (MissionError, *self.vehicle_errors) as exc:  # touchdown confirmed: disarm or release failed
-            return f"landed, then {exc}"
-        p = self._map_position()
-        return f"landed at ({p.north_m:.1f} N, {p.east_m:.1f} E) and disarmed"
-
+        if abs(wp[2] - p.altitude_m) > self.altitude_tolerance_m:
+            return False
+        if horizontal <= self.goal_tolerance_m and speed <= self.stop_speed_mps:
+            return True
+        if horizontal > 1.5 * self.goal_tolerance_m or speed > 2.0 * self.stop_speed_mps:
+            self._near_goal_since = math.nan
+            return False
+        if math.isnan(self._near_goal_since):
+            self._near_goal_since = self.clock()
+        return self.clock() - self._near_goal_since >= self.settle_s

@@ -1,10 +1,26 @@
-"""The MAVLink link: :class:`MavlinkVehicle`, its typed errors and the autopilots' mode numbers.
+"""The MAVLink link: :class:`MavlinkLink`, one autopilot's telemetry, commands, parameters and setpoint stream.
 
-Part of the ``vehicle`` package, the only code that imports pymavlink.
+Part of the ``vehicle`` package, the only code that imports pymavlink; :class:`~.control.MavlinkVehicle` adds
+the flight actions. Three threads serve one link:
+
+- the reader decodes every message (:class:`~.transport.Transport` reconnects a closed TCP link), counts any
+  message of the target autopilot as a sign of life (:class:`~.health.LinkHealth`), and translates it into the
+  SI :class:`~.telemetry.Telemetry` snapshot, reassembled STATUSTEXTs, parameters, acks and round trips;
+- the sender sends our heartbeat at 1 Hz and, while we control the vehicle, the current setpoint at
+  ``setpoint_rate_hz`` (PX4 leaves OFFBOARD after COM_OF_LOSS_T without one);
+- the keeper asks for the telemetry streams and asks again for those that do not arrive
+  (:class:`~.streams.StreamKeeper`), pings TIMESYNC for the round trip, and requests HOME_POSITION,
+  GPS_GLOBAL_ORIGIN and AUTOPILOT_VERSION until they come.
+
+Identity: system 255 (the ground-station system id autopilots' link failsafes watch by default: ArduCopter's
+MAV_GCS_SYSID), component 191 (MAV_COMP_ID_ONBOARD_COMPUTER, not QGroundControl's or Mission Planner's 190, so
+their acks cannot be taken for ours), heartbeat MAV_TYPE_GCS (PX4 sends its arming refusals as STATUSTEXT only
+to a ground station; with an onboard-controller heartbeat it said nothing, measured on PX4 1.15 SITL).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -14,133 +30,44 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from skyroute.frames import Geodetic, LocalNED
-
-from .telemetry import (
-    Autopilot,
-    StatusText,
-    Telemetry,
-    is_autopilot_heartbeat,
-    map_offset,
-    update_telemetry,
-)
+from . import limits as limits_mod
+from .commands import Commander
+from .errors import ConnectionTimeout, LinkLost, TelemetryTimeout, VehicleError
+from .health import LinkHealth
+from .params import bytewise_encoding, decode_param_value, param_name
+from .statustext import StatusTextAssembler, refusal_reason
+from .streams import ARDUPILOT_GROUPS, StreamKeeper
+from .telemetry import Autopilot, Telemetry, is_autopilot_heartbeat, update_telemetry, with_statustext
+from .transport import Transport
 
 log = logging.getLogger(__name__)
 _NAN = math.nan
 
 #: position + yaw only: ignore velocity, acceleration and yaw rate.
 TYPE_MASK_POSITION_YAW = (
-    mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE
-    | mavlink.POSITION_TARGET_TYPEMASK_VY_IGNORE
-    | mavlink.POSITION_TARGET_TYPEMASK_VZ_IGNORE
-    | mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE
-    | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
-    | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+    mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_VY_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_VZ_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
     | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 )
 #: position + velocity (feed-forward) + yaw: ignore acceleration and yaw rate. PX4's position controller adds the
-#: velocity to its position loop's output (offboard "position with velocity feed-forward"); ArduCopter's GUIDED
-#: takes position + velocity targets (all three axes of each) the same way.
+#: velocity to its position loop's output; ArduCopter's GUIDED takes position + velocity targets the same way.
 TYPE_MASK_POSITION_VELOCITY_YAW = (
-    mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE
-    | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
-    | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
-    | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+    mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 )
+DEFAULT_SOURCE_SYSTEM = 255
+DEFAULT_SOURCE_COMPONENT = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
+_SUBJECT = {mavlink.MAV_CMD_COMPONENT_ARM_DISARM: "arm", mavlink.MAV_CMD_DO_SET_MODE: "mode",
+            mavlink.MAV_CMD_NAV_TAKEOFF: "takeoff"}
+#: Messages asked for with REQUEST_MESSAGE every 2 s until they arrive: (message id, most requests).
+_ONCE = {"HOME_POSITION": (mavlink.MAVLINK_MSG_ID_HOME_POSITION, math.inf),
+         "GPS_GLOBAL_ORIGIN": (mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, 3),
+         "AUTOPILOT_VERSION": (mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 3)}
 
 
-# --------------------------------------------------------------------------------------------------- errors
-class VehicleError(Exception):
-    """Base class of every error raised by this module."""
-
-
-class ConnectionTimeout(VehicleError):
-    """No autopilot heartbeat arrived on ``connection`` within ``timeout_s``."""
-
-    def __init__(self, connection: str, timeout_s: float, detail: str = ""):
-        self.connection, self.timeout_s, self.detail = connection, timeout_s, detail
-        msg = f"no autopilot heartbeat on {connection} within {timeout_s:g} s"
-        super().__init__(f"{msg} ({detail})" if detail else msg)
-
-
-class CommandRejected(VehicleError):
-    """The autopilot answered a command with a result other than ACCEPTED.
-
-    ``command`` and ``result`` are the MAVLink numbers; ``reason`` is the autopilot's latest STATUSTEXT, if any.
-    """
-
-    def __init__(self, command: int, result: int, reason: str | None = None):
-        self.command, self.result, self.reason = command, result, reason
-        text = f"{command_name(command)} rejected: {result_name(result)}"
-        super().__init__(f"{text}: {reason}" if reason else text)
-
-
-class CommandTimeout(VehicleError):
-    """No COMMAND_ACK for ``command`` after ``attempts`` sends of ``timeout_s`` each."""
-
-    def __init__(self, command: int, attempts: int, timeout_s: float):
-        self.command, self.attempts, self.timeout_s = command, attempts, timeout_s
-        super().__init__(f"no COMMAND_ACK for {command_name(command)} after {attempts} x {timeout_s:g} s")
-
-
-class LinkLost(VehicleError):
-    """The autopilot's heartbeat stopped for longer than the link timeout."""
-
-    def __init__(self, silent_s: float):
-        self.silent_s = silent_s
-        super().__init__(f"link lost: no autopilot heartbeat for {silent_s:.1f} s")
-
-
-class TelemetryTimeout(VehicleError):
-    """A telemetry condition (``what``) did not hold within ``timeout_s``."""
-
-    def __init__(self, what: str, timeout_s: float):
-        self.what, self.timeout_s = what, timeout_s
-        super().__init__(f"timed out after {timeout_s:g} s waiting for {what}")
-
-
-class UnsupportedMode(VehicleError):
-    """The mode name is not in pymavlink's table for this autopilot."""
-
-    def __init__(self, mode: str, autopilot: Autopilot):
-        self.mode, self.autopilot = mode, autopilot
-        super().__init__(f"mode {mode!r} unknown for {autopilot.value}")
-
-
-def command_name(command: int) -> str:
-    """``MAV_CMD_...`` name of a command number (or the number)."""
-    entry = mavlink.enums["MAV_CMD"].get(command)
-    return entry.name if entry else f"command {command}"
-
-
-def result_name(result: int) -> str:
-    """``MAV_RESULT_...`` name of a result number (or the number)."""
-    entry = mavlink.enums["MAV_RESULT"].get(result)
-    return entry.name if entry else f"result {result}"
-
-
-def mode_numbers(autopilot: Autopilot, mode: str, mav_type: int = mavlink.MAV_TYPE_QUADROTOR) -> tuple[int, int]:
-    """``(param2, param3)`` of DO_SET_MODE for ``mode``, from pymavlink's tables.
-
-    PX4 / generic: (custom main mode, custom sub mode), e.g. ``OFFBOARD`` -> (6, 0). ArduPilot: (mode number, 0)
-    from the table for ``mav_type`` (ArduCopter for multirotors), e.g. ``GUIDED`` -> (4, 0).
-    """
-    mode = mode.upper()
-    if autopilot is Autopilot.ARDUPILOT:
-        table = mavutil.mode_mapping_byname(mav_type) or {v: k for k, v in mavutil.mode_mapping_acm.items()}
-        if mode not in table:
-            raise UnsupportedMode(mode, autopilot)
-        return int(table[mode]), 0
-    if mode not in mavutil.px4_map:
-        raise UnsupportedMode(mode, autopilot)
-    _, main_mode, sub_mode = mavutil.px4_map[mode]
-    return int(main_mode), int(sub_mode)
-
-
-# ------------------------------------------------------------------------------------------------- vehicle
 @dataclass(frozen=True)
 class _Setpoint:
     north_m: float
@@ -152,8 +79,8 @@ class _Setpoint:
     set_at_s: float = 0.0
 
 
-class MavlinkVehicle:
-    """A MAVLink autopilot (PX4, ArduPilot or generic) behind SI-unit methods.
+class MavlinkLink:
+    """A MAVLink autopilot (PX4, ArduPilot or generic): its telemetry, commands, parameters, setpoint stream.
 
     Parameters
     ----------
@@ -161,20 +88,28 @@ class MavlinkVehicle:
         Any pymavlink connection string: ``tcp:HOST:PORT``, ``udpin:HOST:PORT``, ``udpout:...``, serial device.
     heartbeat_timeout_s : float
         How long to wait for the first autopilot heartbeat (and for a TCP connect to succeed).
-    link_timeout_s : float
-        Heartbeat silence after which the link counts as lost.
+    target_system : int, optional
+        Fly this system id when several vehicles heartbeat on one link (default: the first autopilot heard).
+    signing_key : bytes, optional
+        32-byte MAVLink 2 signing secret (see :func:`~.transport.signing_key`).
+    link_floor_s : float
+        Shortest silence counted as a lost link; longer on slow links (4 round trips).
     command_timeout_s, command_retries : float, int
-        Each COMMAND_LONG waits this long for its COMMAND_ACK, and is re-sent up to ``command_retries`` times.
-    setpoint_rate_hz, telemetry_rate_hz : float
-        Setpoint re-send rate while in control; requested rate of position/attitude messages.
-    local_position_rate_hz : float
-        Requested rate of LOCAL_POSITION_NED (40 bytes a message: 2 kB/s at 50 Hz, within a 57600 baud radio),
-        which the mission steers by: at 10 Hz a vehicle at 10 m/s moves 1 m between fixes.
+        Each COMMAND_LONG waits this long (at least 2 round trips) for its ack, and is re-sent up to
+        ``command_retries`` times.
+    setpoint_rate_hz, telemetry_rate_hz, local_position_rate_hz : float
+        Setpoint re-send rate while in control; requested rate of position/attitude messages; of
+        LOCAL_POSITION_NED, which the mission steers by (40 bytes a message: 2 kB/s at 50 Hz).
+    feedforward_timeout_s : float
+        Re-sends drop the velocity feed-forward once it is older than this (the vehicle then brakes at the
+        position), so a stalled mission never keeps the vehicle coasting on.
     tlog_path : str, optional
         Write a standard MAVLink tlog (8-byte big-endian microseconds + packet) of everything received and sent.
 
     Raises
     ------
+    BadConnection
+        pymavlink cannot open ``connection``.
     ConnectionTimeout
         No autopilot heartbeat within ``heartbeat_timeout_s``.
     """
@@ -184,124 +119,91 @@ class MavlinkVehicle:
         connection: str = "tcp:127.0.0.1:5760",
         *,
         heartbeat_timeout_s: float = 10.0,
-        link_timeout_s: float = 3.0,
+        target_system: int | None = None,
+        signing_key: bytes | None = None,
+        link_floor_s: float = 2.0,
         command_timeout_s: float = 1.5,
         command_retries: int = 3,
         setpoint_rate_hz: float = 20.0,
         telemetry_rate_hz: float = 10.0,
         feedforward_timeout_s: float = 0.5,
         local_position_rate_hz: float = 50.0,
-        source_system: int = 255,
-        source_component: int = mavlink.MAV_COMP_ID_MISSIONPLANNER,
+        source_system: int = DEFAULT_SOURCE_SYSTEM,
+        source_component: int = DEFAULT_SOURCE_COMPONENT,
         tlog_path: str | os.PathLike | None = None,
     ):
         self.connection = connection
-        self.link_timeout_s = link_timeout_s
-        self.command_timeout_s = command_timeout_s
-        self.command_retries = command_retries
-        self.setpoint_rate_hz = setpoint_rate_hz
-        self.feedforward_timeout_s = feedforward_timeout_s
-        self.local_position_rate_hz = local_position_rate_hz
-        self._source_system = source_system
+        self.command_timeout_s, self.command_retries = command_timeout_s, command_retries
+        self.setpoint_rate_hz, self.feedforward_timeout_s = setpoint_rate_hz, feedforward_timeout_s
+        self.us = (source_system, source_component)
+        self.wanted_system = target_system
+        self.health = LinkHealth(floor_s=link_floor_s)
         self._t0 = time.monotonic()
         self._telemetry = Telemetry()
-        self._cond = threading.Condition()  # guards _telemetry, _acks, _target
-        self._acks: list = []
+        self._cond = threading.Condition()  # guards _telemetry, _target, _params
         self._target: tuple[int, int] | None = None
+        self._others: set[int] = set()
         self._mav_type = mavlink.MAV_TYPE_QUADROTOR
-        self._send_lock = threading.Lock()  # guards the MAVLink encoder (sequence numbers) and the socket
-        self._command_lock = threading.Lock()  # one command in flight at a time
+        self._capabilities: int | None = None
+        self._params: dict[str, tuple[float, int]] = {}
+        self._limits: limits_mod.FlightLimits | None = None
+        self._texts = StatusTextAssembler()
+        self._streams = StreamKeeper({
+            "GLOBAL_POSITION_INT": telemetry_rate_hz,
+            "LOCAL_POSITION_NED": max(telemetry_rate_hz, local_position_rate_hz),
+            "ATTITUDE": telemetry_rate_hz, "EXTENDED_SYS_STATE": telemetry_rate_hz, "SYS_STATUS": 1.0,
+            "GPS_RAW_INT": 2.0})
+        self._once_received: set[str] = set()
+        self._timesyncs: dict[int, float] = {}
         self._setpoint: _Setpoint | None = None
         self._streaming = False
-        self._eof = False
+        self._setpoint_gaps: list[tuple[float, float]] = []  # (when, gap s) of setpoint pauses > 0.3 s
+        self._link_down_s = _NAN  # when the keeper last saw the link silent
         self._stop = threading.Event()
         self._tlog = open(tlog_path, "wb") if tlog_path else None  # noqa: SIM115 (closed in close())
         self._tlog_lock = threading.Lock()
+        self.commander = Commander(self._send, self.us, self.health, self._refusal_reason)
         try:
-            self._conn = self._open(connection, heartbeat_timeout_s, source_system, source_component)
+            self.transport = Transport(connection, source_system=source_system, source_component=source_component,
+                                       key=signing_key, connect_timeout_s=heartbeat_timeout_s,
+                                       on_packet=self._write_tlog)
         except BaseException:
             self._close_tlog()
             raise
-        self._conn.mav.set_send_callback(self._on_sent)
-        if hasattr(self._conn, "handle_eof"):  # TCP: note the peer closing instead of printing in a loop
-            self._conn.handle_eof = self._on_eof
-            self._conn.handle_disconnect = self._on_eof
-        self._reader = threading.Thread(target=self._read_loop, name="mavlink-reader", daemon=True)
-        self._sender = threading.Thread(target=self._send_loop, name="mavlink-sender", daemon=True)
-        self._reader.start()
-        self._sender.start()
+        self._threads = [threading.Thread(target=loop, name=f"mavlink-{name}", daemon=True)
+                         for name, loop in (("reader", self._read_loop), ("sender", self._send_loop),
+                                            ("keeper", self._keep_loop))]
+        self._threads[0].start()
+        self._threads[1].start()
         try:
             self._wait_for_autopilot(heartbeat_timeout_s)
-            self._request_telemetry(telemetry_rate_hz)
         except BaseException:
             self.close()
             raise
+        self._threads[2].start()
 
     # ------------------------------------------------------------------------------------------ connection
-    @staticmethod
-    def _open(connection: str, timeout_s: float, source_system: int, source_component: int):
-        deadline = time.monotonic() + timeout_s
-        while True:
-            try:
-                conn = mavutil.mavlink_connection(
-                    connection, source_system=source_system, source_component=source_component,
-                    retries=0, autoreconnect=False,
-                )
-            except OSError as exc:  # TCP refused: the autopilot may still be starting
-                if time.monotonic() >= deadline:
-                    raise ConnectionTimeout(connection, timeout_s, str(exc)) from exc
-                time.sleep(0.2)
-                continue
-            if not conn.mavlink20():
-                # Speak MAVLink 2 from our first packet (pymavlink would otherwise start with MAVLink 1 and swap
-                # its encoder on the first MAVLink 2 packet it reads, racing our sender thread).
-                conn.mav = mavlink.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
-                conn.mav.robust_parsing = True
-                conn.WIRE_PROTOCOL_VERSION = "2.0"
-            return conn
-
     def _wait_for_autopilot(self, timeout_s: float) -> None:
         with self._cond:
             if not self._cond.wait_for(lambda: self._target is not None, timeout=timeout_s):
-                raise ConnectionTimeout(self.connection, timeout_s)
+                which = "" if self.wanted_system is None else f"system {self.wanted_system}: "
+                seen = f"heard systems {sorted(self._others)}" if self._others else ""
+                raise ConnectionTimeout(self.connection, timeout_s, (which + seen).strip(": ") or "")
             sysid, compid = self._target
             t = self._telemetry
-        log.info("connected to %s autopilot system %d component %d on %s (mode %s)",
-                 t.autopilot.value, sysid, compid, self.connection, t.mode)
-
-    def _request_telemetry(self, rate_hz: float) -> None:
-        rates = {
-            mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: rate_hz,
-            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: max(rate_hz, self.local_position_rate_hz),
-            mavlink.MAVLINK_MSG_ID_ATTITUDE: rate_hz,
-            mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: rate_hz,  # touchdown detection
-            mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
-        }
-        for msg_id, hz in rates.items():
-            self._request_quietly(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
-        self._request_quietly(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_HOME_POSITION)
-
-    def _request_quietly(self, command: int, *params: float) -> None:
-        """Telemetry requests are best effort: some autopilots stream by default and refuse or ignore them."""
-        try:
-            self.command_long(command, *params, timeout_s=min(self.command_timeout_s, 1.0), retries=1)
-        except (CommandRejected, CommandTimeout) as exc:
-            log.warning("telemetry request ignored: %s", exc)
+        log.info("connected to %s autopilot system %d component %d on %s (mode %s)%s",
+                 t.autopilot.value, sysid, compid, self.connection, t.mode,
+                 ", signed" if self.transport.signing else "")
 
     def close(self) -> None:
-        """Stop both threads, close the link and flush/close the tlog. Safe to call twice."""
-        self._streaming = False
         self._stop.set()
-        for thread in (getattr(self, "_reader", None), getattr(self, "_sender", None)):
-            if thread is not None and thread.is_alive() and thread is not threading.current_thread():
+        self.stop_streaming()
+        self.commander.close()
+        for thread in self._threads:
+            if thread.is_alive() and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
-        conn = getattr(self, "_conn", None)
-        if conn is not None:
-            try:
-                conn.close()
-            except OSError:
-                pass
-            self._conn = None
+        if hasattr(self, "transport"):
+            self.transport.close()
         self._close_tlog()
 
     def _close_tlog(self) -> None:
@@ -310,7 +212,7 @@ class MavlinkVehicle:
                 self._tlog.close()
                 self._tlog = None
 
-    def __enter__(self) -> MavlinkVehicle:
+    def __enter__(self) -> MavlinkLink:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -328,24 +230,23 @@ class MavlinkVehicle:
         return self.telemetry.autopilot
 
     @property
-    def link_ok(self) -> bool:
-        """True while the autopilot's heartbeat is younger than ``link_timeout_s``."""
-        return self.heartbeat_age_s() <= self.link_timeout_s
-
-    def heartbeat_age_s(self) -> float:
-        last = self.telemetry.last_heartbeat_s
-        return math.inf if math.isnan(last) else time.monotonic() - last
-
-    def check_link(self) -> None:
-        """Raise :class:`LinkLost` when the heartbeat has been silent for longer than ``link_timeout_s``."""
-        age = self.heartbeat_age_s()
-        if age > self.link_timeout_s:
-            raise LinkLost(age)
+    def target(self) -> tuple[int, int]:
+        return self._target
 
     @property
-    def in_control(self) -> bool:
-        """True while the autopilot is in OFFBOARD (PX4) or GUIDED (ArduPilot)."""
-        return self.telemetry.mode in ("OFFBOARD", "GUIDED")
+    def link_ok(self) -> bool:
+        """True while the target autopilot has been heard within the link timeout (any message counts)."""
+        return self.health.ok()
+
+    @property
+    def round_trip_s(self) -> float:
+        """Measured round trip to the autopilot (s, TIMESYNC and acks; 0 before the first sample)."""
+        return self.health.rtt_s
+
+    def check_link(self) -> None:
+        """Raise :class:`LinkLost` when the autopilot has been silent for longer than the link timeout."""
+        if not self.health.ok():
+            raise LinkLost(self.health.silent_s(), self.health.timeout_s)
 
     def wait_for(self, predicate: Callable[[Telemetry], bool], timeout_s: float, what: str) -> Telemetry:
         """Block until ``predicate(telemetry)`` holds; raise :class:`TelemetryTimeout` (or LinkLost) otherwise."""
@@ -361,191 +262,91 @@ class MavlinkVehicle:
         self.check_link()
         raise TelemetryTimeout(what, timeout_s)
 
-    def map_offset(self, map_origin: Geodetic, timeout_s: float = 10.0) -> LocalNED:
-        """``map_ned - autopilot_local_ned`` (see :func:`map_offset`), once both positions have arrived."""
-        t = self.wait_for(lambda t: t.has_global and t.has_local, timeout_s,
-                          "GLOBAL_POSITION_INT and LOCAL_POSITION_NED")
-        offset = map_offset(t, map_origin)
-        log.info("map frame = autopilot local frame + (%.2f, %.2f, %.2f) m", *offset)
-        return offset
+    # ----------------------------------------------------------------------------------------- parameters
+    def read_params(self, names, timeout_s: float = 1.5) -> dict[str, float]:
+        """Read parameters by name (PARAM_REQUEST_READ); returns those the autopilot has, decoded (see
+        :func:`~.params.decode_param_value`). Names it does not answer are left out."""
+        names = list(names)
+        deadline = time.monotonic() + timeout_s
+        for name in names:
+            with self._cond:
+                self._params.pop(name, None)
+        while True:
+            with self._cond:
+                missing = [n for n in names if n not in self._params]
+            if not missing or time.monotonic() >= deadline:
+                break
+            for name in missing:
+                self._send(mavlink.MAVLink_param_request_read_message(*self._target, name.encode("ascii"), -1))
+            with self._cond:  # a lost request is asked again; a name the autopilot lacks is never answered
+                self._cond.wait_for(lambda: all(n in self._params for n in names),
+                                    timeout=min(max(0.5, 3 * self.health.rtt_s), max(deadline - time.monotonic(), 0.0)))
+        if self._capabilities is None:  # the encoding needs AUTOPILOT_VERSION; give it a moment
+            with self._cond:
+                self._cond.wait_for(lambda: self._capabilities is not None, timeout=1.0)
+        bytewise = bytewise_encoding(self.autopilot, self._capabilities)
+        with self._cond:
+            raw = {n: self._params[n] for n in names if n in self._params}
+        return {n: decode_param_value(v, ptype, bytewise) for n, (v, ptype) in raw.items()}
 
     # ------------------------------------------------------------------------------------------- commands
     def command_long(self, command: int, *params: float, timeout_s: float | None = None,
-                     retries: int | None = None):
-        """Send COMMAND_LONG and wait for its COMMAND_ACK; returns the ack message.
+                     retries: int | None = None, retry_temporary_s: float = 0.0):
+        """Send COMMAND_LONG to the autopilot and return its ACCEPTED ack (see :class:`~.commands.Commander`)."""
+        return self.commander.run(
+            self._target, command, *params,
+            timeout_s=self.command_timeout_s if timeout_s is None else timeout_s,
+            retries=self.command_retries if retries is None else retries, retry_temporary_s=retry_temporary_s)
 
-        Re-sends with ``confirmation`` incremented when no ack arrives; IN_PROGRESS acks extend the wait.
+    def _refusal_reason(self, command: int, since_s: float, until_s: float, grace_s: float = 0.3) -> str | None:
+        time.sleep(grace_s)  # a text may trail its ack
+        return refusal_reason(self.telemetry.statustexts, since_s, until_s + grace_s, _SUBJECT.get(command))
 
-        Raises
-        ------
-        CommandRejected
-            Any result but ACCEPTED, with the autopilot's latest STATUSTEXT as the reason.
-        CommandTimeout
-            No ack after ``1 + retries`` attempts.
-        LinkLost
-            The heartbeat is silent (before sending, or when the retries ran out).
-        """
-        timeout_s = self.command_timeout_s if timeout_s is None else timeout_s
-        retries = self.command_retries if retries is None else retries
-        p = [float(x) for x in params] + [0.0] * (7 - len(params))
-        self.check_link()
-        with self._command_lock:
-            sent_s = time.monotonic()
-            for confirmation in range(retries + 1):
-                with self._cond:
-                    self._acks.clear()
-                sysid, compid = self._target
-                self._send(self._conn.mav.command_long_encode(sysid, compid, command, confirmation, *p))
-                ack = self._wait_ack(command, timeout_s)
-                if ack is None:
-                    log.debug("no ack for %s (attempt %d)", command_name(command), confirmation + 1)
-                    continue
-                if ack.result == mavlink.MAV_RESULT_ACCEPTED:
-                    return ack
-                raise CommandRejected(command, ack.result, self._reason_since(sent_s))
-        self.check_link()
-        raise CommandTimeout(command, retries + 1, timeout_s)
-
-    def _wait_ack(self, command: int, timeout_s: float):
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while True:
-                for i, ack in enumerate(self._acks):
-                    if ack.command != command:
-                        continue
-                    del self._acks[i]
-                    if ack.result == mavlink.MAV_RESULT_IN_PROGRESS:
-                        deadline = time.monotonic() + timeout_s
-                        break
-                    return ack
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return None
-                self._cond.wait(timeout=remaining)
-
-    def _reason_since(self, since_s: float, grace_s: float = 0.3) -> str | None:
-        """The autopilot's latest STATUSTEXT since ``since_s`` (waiting ``grace_s`` for one that trails the ack)."""
-
-        def latest(t: Telemetry) -> StatusText | None:
-            recent = [s for s in t.statustexts if s.time_s >= since_s - 0.5]
-            return recent[-1] if recent else None
-
-        try:
-            t = self.wait_for(lambda t: latest(t) is not None, grace_s, "STATUSTEXT")
-        except VehicleError:
-            return None
-        return latest(t).text
-
-    def arm(self) -> None:
-        """Arm (MAV_CMD_COMPONENT_ARM_DISARM 1) and wait for the heartbeat to say so."""
-        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-        self.wait_for(lambda t: t.armed, 3.0, "heartbeat armed flag")
-        log.info("armed")
-
-    def disarm(self, *, force: bool = False) -> None:
-        """Disarm; ``force`` sends the 21196 magic (disarm in the air) — never used by the mission."""
-        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196 if force else 0)
-        self.wait_for(lambda t: not t.armed, 3.0, "heartbeat disarmed flag")
-        log.info("disarmed")
-
-    def set_mode(self, mode: str) -> None:
-        """DO_SET_MODE by name, using pymavlink's PX4 or ArduPilot table (raises :class:`UnsupportedMode`)."""
-        main_mode, sub_mode = mode_numbers(self.autopilot, mode, self._mav_type)
-        self.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main_mode,
-                          sub_mode)
-        log.info("mode %s requested", mode)
-
-    def start_offboard(self, warmup_s: float = 0.5) -> None:
-        """Take position control: PX4/generic OFFBOARD (setpoints stream first), ArduPilot GUIDED."""
-        t = self.telemetry
-        if self.autopilot is Autopilot.ARDUPILOT:
-            self.set_mode("GUIDED")
-            return
-        if self._setpoint is None:
-            self._setpoint = _Setpoint(t.north_m, t.east_m, t.down_m, _heading_or_zero(t))
-        self._streaming = True
-        time.sleep(warmup_s)
-        self.set_mode("OFFBOARD")
-
-    def takeoff(self, altitude_m: float) -> LocalNED:
-        """Climb ``altitude_m`` above the current position; returns the local target. Does not wait.
-
-        PX4/generic: OFFBOARD with a position setpoint straight above. ArduPilot: GUIDED + MAV_CMD_NAV_TAKEOFF.
-        """
-        t = self.telemetry
-        target = LocalNED(t.north_m, t.east_m, t.down_m - altitude_m)
-        if self.autopilot is Autopilot.ARDUPILOT:
-            self._streaming, self._setpoint = False, None  # a position target would cut the takeoff short
-            if t.mode != "GUIDED":
-                self.set_mode("GUIDED")
-            self.command_long(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, _NAN, 0, 0, altitude_m)
-        else:
-            self._setpoint = _Setpoint(t.north_m, t.east_m, t.down_m, _heading_or_zero(t))
-            if not self.in_control:
-                self.start_offboard()
-            self.goto_local(*target, yaw_rad=_heading_or_zero(t))
-        log.info("takeoff to %.1f m above the ground", altitude_m)
-        return target
-
-    def goto_local(self, north_m: float, east_m: float, down_m: float, yaw_rad: float,
-                   velocity_ned: tuple[float, float, float] | None = None) -> None:
-        """Fly to a position in the autopilot's LOCAL_NED frame (m) with a heading (rad); re-sent until changed.
-
-        ``velocity_ned`` (m/s, local NED) is sent with the position as a feed-forward: the autopilot flies at that
-        velocity plus its position loop's correction towards the position, so a client that moves the position
-        along a path with the path's velocity gets flown through it without braking at each setpoint. Re-sends
-        drop it after ``feedforward_timeout_s`` without a new call (position only: the vehicle brakes there).
-        """
+    # ------------------------------------------------------------------------------------------ setpoints
+    def stream_setpoint(self, north_m: float, east_m: float, down_m: float, yaw_rad: float,
+                        velocity_ned: tuple[float, float, float] | None = None) -> None:
+        """Make this the setpoint re-sent at ``setpoint_rate_hz`` (local NED, m; yaw rad; velocity m/s), send it now."""
         velocity = None if velocity_ned is None else tuple(float(v) for v in velocity_ned)
         self._setpoint = _Setpoint(float(north_m), float(east_m), float(down_m), float(yaw_rad), velocity,
                                    time.monotonic())
         self._streaming = True
         self._send_setpoint(self._setpoint)
 
-    def land(self) -> None:
-        """Land where we are: PX4 MAV_CMD_NAV_LAND (falls back to AUTO.LAND mode), ArduPilot LAND mode.
+    def shift_setpoint(self, north_m: float, east_m: float, down_m: float) -> None:
+        """Move the streamed setpoint by (north, east, down) m: the autopilot's local frame moved under it (an
+        EKF reset, a new origin), and the same place now has other local coordinates."""
+        sp = self._setpoint
+        if sp is not None:
+            self._setpoint = dataclasses.replace(sp, north_m=sp.north_m + north_m, east_m=sp.east_m + east_m,
+                                                 down_m=sp.down_m + down_m)
 
-        Setpoints keep streaming until the autopilot accepts, so a slow answer cannot drop PX4 out of OFFBOARD.
-        """
-        if self.autopilot is Autopilot.ARDUPILOT:
-            self.set_mode("LAND")
-        else:
-            try:
-                self.command_long(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, _NAN, _NAN, _NAN, _NAN)
-            except CommandRejected as exc:
-                log.warning("%s; switching to LAND mode instead", exc)
-                self.set_mode("LAND")
-        self._streaming = False
-        log.info("landing")
-
-    def hold(self) -> None:
-        """Hover in place: LOITER mode; if refused, keep streaming a setpoint at the current position."""
-        t = self.telemetry
-        if self.in_control:
-            self.goto_local(t.north_m, t.east_m, t.down_m, _heading_or_zero(t))
-        try:
-            self.set_mode("LOITER")
-        except (CommandRejected, UnsupportedMode) as exc:
-            if not self.in_control:
-                raise
-            log.warning("%s; holding with a position setpoint instead", exc)
-        else:
-            self._streaming = False
-        log.info("holding position")
-
-    def release_control(self) -> None:
-        """Stop streaming setpoints (the autopilot keeps its current mode)."""
+    def stop_streaming(self) -> None:
+        """Stop re-sending setpoints (the autopilot keeps its current mode)."""
         self._streaming = False
         self._setpoint = None
 
-    # ------------------------------------------------------------------------------------------ threads
-    def _send(self, msg) -> None:
-        with self._send_lock:
-            if self._conn is not None:
-                self._conn.mav.send(msg)
+    @property
+    def streaming(self) -> bool:
+        return self._streaming and self._setpoint is not None
 
-    def _on_sent(self, msg) -> None:  # called by the encoder under _send_lock
-        self._write_tlog(msg.get_msgbuf())
+    def setpoint_pause_s(self, window_s: float) -> float:
+        """The longest pause (s) of our setpoint stream that ended in the last ``window_s`` (0 if none > 0.3 s)."""
+        now = time.monotonic()
+        return max((gap for when, gap in list(self._setpoint_gaps) if now - when <= window_s), default=0.0)
+
+    def link_silent_within(self, window_s: float) -> bool:
+        """True if the link counted as lost at some moment of the last ``window_s`` (checked 4 times a second)."""
+        return time.monotonic() - self._link_down_s <= window_s
+
+    # ------------------------------------------------------------------------------------------ threads
+    def _send(self, msg) -> bool:
+        return self.transport.send(msg)
+
+    def _assume(self, **fields) -> None:
+        """Take an ACCEPTED command's effect (e.g. ``armed=True``) as known until the next heartbeat says."""
+        with self._cond:
+            self._telemetry = dataclasses.replace(self._telemetry, **fields)
+            self._cond.notify_all()
 
     def _write_tlog(self, packet: bytes) -> None:
         with self._tlog_lock:
@@ -553,15 +354,9 @@ class MavlinkVehicle:
                 self._tlog.write(struct.pack(">Q", int(time.time() * 1e6) & ~3) + bytes(packet))
                 self._tlog.flush()
 
-    def _on_eof(self) -> None:
-        if not self._eof:
-            log.error("the autopilot closed the connection %s", self.connection)
-        self._eof = True
-
     def _send_setpoint(self, sp: _Setpoint) -> None:
         if self._target is None:
             return
-        sysid, compid = self._target
         now = time.monotonic()
         boot_ms = int((now - self._t0) * 1000) & 0xFFFFFFFF
         velocity = sp.velocity_ned
@@ -569,73 +364,130 @@ class MavlinkVehicle:
             velocity = None
         mask = TYPE_MASK_POSITION_YAW if velocity is None else TYPE_MASK_POSITION_VELOCITY_YAW
         vn, ve, vd = (0.0, 0.0, 0.0) if velocity is None else velocity
-        self._send(self._conn.mav.set_position_target_local_ned_encode(
-            boot_ms, sysid, compid, mavlink.MAV_FRAME_LOCAL_NED, mask,
+        self._send(mavlink.MAVLink_set_position_target_local_ned_message(
+            boot_ms, *self._target, mavlink.MAV_FRAME_LOCAL_NED, mask,
             sp.north_m, sp.east_m, sp.down_m, vn, ve, vd, 0, 0, 0, sp.yaw_rad, 0))
 
     def _send_loop(self) -> None:
         period = 1.0 / self.setpoint_rate_hz
-        next_heartbeat = 0.0
+        next_heartbeat, last_setpoint = 0.0, _NAN
         while not self._stop.is_set():
-            try:
-                now = time.monotonic()
-                if now >= next_heartbeat:
-                    next_heartbeat = now + 1.0
-                    self._send(self._conn.mav.heartbeat_encode(
-                        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE))
-                sp = self._setpoint
-                if self._streaming and sp is not None:
-                    self._send_setpoint(sp)
-            except (OSError, AttributeError) as exc:  # AttributeError: connection closed under us
-                if self._stop.is_set():
-                    return
-                log.debug("send failed: %s", exc)
+            now = time.monotonic()
+            if now >= next_heartbeat:
+                next_heartbeat = now + 1.0
+                self._send(mavlink.MAVLink_heartbeat_message(
+                    mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
+            sp = self._setpoint
+            if self._streaming and sp is not None:
+                if now - last_setpoint > 0.3:  # a pause (a busy process): the autopilot may have left OFFBOARD
+                    self._setpoint_gaps = [*self._setpoint_gaps[-9:], (now, now - last_setpoint)]
+                self._send_setpoint(sp)
+                last_setpoint = now
+            else:
+                last_setpoint = _NAN
             self._stop.wait(period)
 
-    def _read_loop(self) -> None:
-        conn = self._conn
+    def _keep_loop(self) -> None:
+        next_timesync = 0.0
+        once_asked: dict[str, tuple[float, int]] = {}  # name -> (when last asked, how often)
         while not self._stop.is_set():
-            if self._eof:
-                self._stop.wait(0.1)
-                continue
-            try:
-                msg = conn.recv_msg()
-            except OSError as exc:
-                if not self._stop.is_set():
-                    log.error("link read failed: %s", exc)
-                self._eof = True
-                continue
-            if msg is None:
-                conn.select(0.05)
-                continue
-            if msg.get_type() == "BAD_DATA":
+            now = time.monotonic()
+            if not self.health.ok(now):
+                self._link_down_s = now
+            elif self._target is not None:
+                if now >= next_timesync:
+                    next_timesync = now + 1.0
+                    stamp = time.monotonic_ns()
+                    self._timesyncs = {k: v for k, v in self._timesyncs.items() if now - v < 10.0}
+                    self._timesyncs[stamp] = now
+                    self._send(mavlink.MAVLink_timesync_message(0, stamp))
+                for stream in self._streams.due(now):
+                    self._request_stream(stream, now)
+                for name, (msg_id, most) in _ONCE.items():
+                    when, asks = once_asked.get(name, (-math.inf, 0))
+                    if name not in self._once_received and now - when > 2.0 and asks < most:
+                        once_asked[name] = (now, asks + 1)
+                        self._request_quietly(mavlink.MAV_CMD_REQUEST_MESSAGE, msg_id)
+            self._stop.wait(0.25)
+
+    def _request_stream(self, stream, now: float) -> None:
+        refused = not self._request_quietly(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, stream.msg_id, 1e6 / stream.rate_hz)
+        self._streams.asked(stream.name, now, refused)
+        if refused and self.autopilot is Autopilot.ARDUPILOT and stream.name in ARDUPILOT_GROUPS:
+            for group in ARDUPILOT_GROUPS[stream.name]:
+                self._send(mavlink.MAVLink_request_data_stream_message(
+                    *self._target, group, max(1, round(stream.rate_hz)), 1))
+
+    def _request_quietly(self, command: int, *params: float) -> bool:
+        """Telemetry requests are best effort: some autopilots stream by default and refuse or ignore them."""
+        try:
+            self.command_long(command, *params, timeout_s=min(self.command_timeout_s, 1.0), retries=1)
+            return True
+        except VehicleError as exc:
+            log.debug("telemetry request %s not accepted: %s", command, exc)
+            return False
+
+    def _read_loop(self) -> None:
+        while not self._stop.is_set():
+            msg = self.transport.recv(0.05)
+            if msg is None or msg.get_type() == "BAD_DATA":
                 continue
             self._write_tlog(msg.get_msgbuf())
-            self._handle(msg)
+            try:
+                self._handle(msg)
+            except Exception:  # a malformed message must not end the reader
+                log.exception("could not handle %s", msg.get_type())
+
+    def _choose_target(self, msg, src: tuple[int, int]) -> bool:
+        if not is_autopilot_heartbeat(msg):
+            return False
+        if self.wanted_system is not None and src[0] != self.wanted_system:
+            self._others.add(src[0])
+            return False
+        self._target, self._mav_type = src, msg.type
+        return True
 
     def _handle(self, msg) -> None:
         now = time.monotonic()
         mtype = msg.get_type()
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         with self._cond:
-            if self._target is None:
-                if mtype != "HEARTBEAT" or not is_autopilot_heartbeat(msg):
-                    return
-                self._target = src
-                self._mav_type = msg.type
-            if src[0] != self._target[0]:
+            if self._target is None and not (mtype == "HEARTBEAT" and self._choose_target(msg, src)):
                 return
-            if mtype == "HEARTBEAT" and src != self._target:
-                return  # another component of the same system
-            if mtype == "COMMAND_ACK":
-                if getattr(msg, "target_system", 0) in (0, self._source_system):
-                    self._acks.append(msg)
-            self._telemetry = update_telemetry(self._telemetry, msg, now)
+            if src[0] != self._target[0]:
+                if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg) and src[0] not in self._others:
+                    self._others.add(src[0])
+                    log.warning("another vehicle (system %d) on %s: flying system %d; pick one with "
+                                "--target-system", src[0], self.connection, self._target[0])
+                return
+            if src != self._target and mtype in ("HEARTBEAT", "COMMAND_ACK"):
+                return  # another component of the same system (a camera, a gimbal)
+            self.health.heard(now)
+            self._streams.received(mtype, now)
+            if mtype in _ONCE:
+                self._once_received.add(mtype)
+            if mtype == "AUTOPILOT_VERSION":
+                self._capabilities = int(msg.capabilities)
+            elif mtype == "PARAM_VALUE":
+                self._params[param_name(msg.param_id)] = (float(msg.param_value), int(msg.param_type))
+            elif mtype == "STATUSTEXT":
+                for entry in self._texts.add(msg.severity, msg.text, getattr(msg, "id", 0),
+                                             getattr(msg, "chunk_seq", 0), now):
+                    self._telemetry = with_statustext(self._telemetry, entry)
+                    level = logging.WARNING if entry.severity <= mavlink.MAV_SEVERITY_ERROR else logging.INFO
+                    log.log(level, "autopilot says: %s", entry.text)
+            else:
+                self._telemetry = update_telemetry(self._telemetry, msg, now)
             self._cond.notify_all()
-        if mtype == "STATUSTEXT":
-            level = logging.WARNING if msg.severity <= mavlink.MAV_SEVERITY_WARNING else logging.INFO
-            log.log(level, "autopilot says: %s", str(msg.text).rstrip("\x00"))
+        if mtype == "COMMAND_ACK":
+            self.commander.on_ack(msg, src)
+        elif mtype == "TIMESYNC":
+            self._on_timesync(msg, now)
 
-
-def _heading_or_zero(t: Telemetry) -> float:
-    return 0.0 if math.isnan(t.heading_rad) else t.heading_rad
+    def _on_timesync(self, msg, now: float) -> None:
+        if msg.tc1 == 0:  # the autopilot asks for our time: answer, as MAVSDK does
+            self._send(mavlink.MAVLink_timesync_message(time.monotonic_ns(), msg.ts1))
+            return
+        sent = self._timesyncs.pop(msg.ts1, None)
+        if sent is not None:
+            self.health.round_trip(now - sent)

@@ -2,7 +2,12 @@
 
 One pure ``telemetry_from_*`` function per message family, each ``(telemetry, msg, now_s) -> Telemetry``,
 dispatched by :func:`update_telemetry`; plus the map-frame helpers :func:`map_offset` and :func:`map_position`.
+STATUSTEXT is reassembled from its chunks first (:mod:`.statustext`) and added with :func:`with_statustext`.
 Part of the ``vehicle`` package, the only code that imports pymavlink.
+
+The map frame is NED at the map's origin (lat0, lon0) with altitude 0 at the map's ground; the ground's altitude
+above mean sea level (``ground_amsl_m``) ties the autopilot's AMSL altitudes to it (not its home, which real
+autopilots move to wherever they arm).
 """
 
 from __future__ import annotations
@@ -19,9 +24,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from skyroute.frames import Geodetic, LocalNED, geodetic_to_ned
 
+from .statustext import StatusText
+
 log = logging.getLogger(__name__)
 
-STATUSTEXT_KEEP = 32
+STATUSTEXT_KEEP = 64
 _NOT_AUTOPILOT_TYPES = frozenset(
     {
         mavlink.MAV_TYPE_GCS,
@@ -52,15 +59,6 @@ class LandedState(enum.IntEnum):
     LANDING = mavlink.MAV_LANDED_STATE_LANDING
 
 
-@dataclass(frozen=True)
-class StatusText:
-    """One STATUSTEXT: MAV_SEVERITY (0 emergency .. 7 debug), text, our monotonic receive time in s."""
-
-    severity: int
-    text: str
-    time_s: float
-
-
 _NAN = math.nan
 
 
@@ -70,7 +68,9 @@ class Telemetry:
 
     Global: ``lat_deg``, ``lon_deg``, ``alt_amsl_m``, ``relative_alt_m`` (above home), NED ground velocity
     ``v*_mps``. Local (autopilot's EKF frame, NED): ``north_m``, ``east_m``, ``down_m``, ``local_v*_mps``.
-    ``*_time_s`` are the autopilot's time since boot of that sample. ``heading_rad`` is yaw from north, clockwise.
+    ``*_time_s`` are the autopilot's time since boot of that sample, ``*_rx_s`` our monotonic receive time.
+    ``heading_rad`` is yaw from north, clockwise. ``gps_fix_type`` is GPS_RAW_INT's GPS_FIX_TYPE (-1: never
+    reported), ``origin`` the EKF origin (GPS_GLOBAL_ORIGIN, AMSL), ``home`` HOME_POSITION (AMSL).
     """
 
     autopilot: Autopilot = Autopilot.GENERIC
@@ -86,6 +86,7 @@ class Telemetry:
     v_east_mps: float = _NAN
     v_down_mps: float = _NAN
     global_time_s: float = _NAN
+    global_rx_s: float = _NAN
     north_m: float = _NAN
     east_m: float = _NAN
     down_m: float = _NAN
@@ -93,19 +94,25 @@ class Telemetry:
     local_v_east_mps: float = _NAN
     local_v_down_mps: float = _NAN
     local_time_s: float = _NAN
+    local_rx_s: float = _NAN
     roll_rad: float = _NAN
     pitch_rad: float = _NAN
     heading_rad: float = _NAN
     landed_state: LandedState = LandedState.UNDEFINED
+    landed_rx_s: float = _NAN
     battery_voltage_v: float = _NAN
     battery_remaining_pct: float = _NAN
     prearm_ok: bool | None = None
     home: Geodetic | None = None
+    origin: Geodetic | None = None
+    gps_fix_type: int = -1
+    satellites: int = -1
     statustexts: tuple[StatusText, ...] = field(default_factory=tuple)
 
     @property
     def has_global(self) -> bool:
-        return not math.isnan(self.lat_deg)
+        """A global position estimate: ArduPilot streams GLOBAL_POSITION_INT with lat = lon = 0 before it has one."""
+        return not math.isnan(self.lat_deg) and not (self.lat_deg == 0.0 and self.lon_deg == 0.0)
 
     @property
     def has_local(self) -> bool:
@@ -121,9 +128,10 @@ class Telemetry:
         """Landed: EXTENDED_SYS_STATE says ON_GROUND (or, without it, near home altitude), and not moving vertically.
 
         The vertical-speed check guards against a landed state that is a moment old: just after takeoff the
-        last EXTENDED_SYS_STATE may still say ON_GROUND while the vehicle climbs.
+        last EXTENDED_SYS_STATE may still say ON_GROUND while the vehicle climbs (at 1.5 m/s or more; a booting
+        PX4's estimate wanders at up to ~0.2 m/s while it stands).
         """
-        still = not abs(self.v_down_mps) >= 0.2  # an unknown (NaN) speed does not veto the landed state
+        still = not abs(self.v_down_mps) >= 0.5  # an unknown (NaN) speed does not veto the landed state
         if self.landed_state is not LandedState.UNDEFINED:
             return self.landed_state is LandedState.ON_GROUND and still
         return self.relative_alt_m < 0.3 and still
@@ -179,6 +187,7 @@ def telemetry_from_global_position_int(t: Telemetry, msg, now_s: float) -> Telem
         v_east_mps=msg.vy * 1e-2,
         v_down_mps=msg.vz * 1e-2,
         global_time_s=msg.time_boot_ms * 1e-3,
+        global_rx_s=now_s,
         heading_rad=heading,
     )
 
@@ -194,6 +203,7 @@ def telemetry_from_local_position_ned(t: Telemetry, msg, now_s: float) -> Teleme
         local_v_east_mps=float(msg.vy),
         local_v_down_mps=float(msg.vz),
         local_time_s=msg.time_boot_ms * 1e-3,
+        local_rx_s=now_s,
     )
 
 
@@ -209,7 +219,7 @@ def telemetry_from_extended_sys_state(t: Telemetry, msg, now_s: float) -> Teleme
         landed = LandedState(msg.landed_state)
     except ValueError:
         landed = LandedState.UNDEFINED
-    return dataclasses.replace(t, landed_state=landed)
+    return dataclasses.replace(t, landed_state=landed, landed_rx_s=now_s)
 
 
 def telemetry_from_sys_status(t: Telemetry, msg, now_s: float) -> Telemetry:
@@ -230,10 +240,19 @@ def telemetry_from_home_position(t: Telemetry, msg, now_s: float) -> Telemetry:
     return dataclasses.replace(t, home=Geodetic(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3))
 
 
-def telemetry_from_statustext(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Append the text (keeping the last :data:`STATUSTEXT_KEEP`)."""
-    text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
-    entry = StatusText(int(msg.severity), text.rstrip("\x00"), now_s)
+def telemetry_from_gps_global_origin(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """The EKF origin as a :class:`Geodetic` (degE7 -> deg, mm AMSL -> m)."""
+    return dataclasses.replace(t, origin=Geodetic(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3))
+
+
+def telemetry_from_gps_raw_int(t: Telemetry, msg, now_s: float) -> Telemetry:
+    """GPS fix type (GPS_FIX_TYPE: 3 = 3D) and satellites visible (255 unknown -> -1)."""
+    satellites = -1 if msg.satellites_visible == 255 else int(msg.satellites_visible)
+    return dataclasses.replace(t, gps_fix_type=int(msg.fix_type), satellites=satellites)
+
+
+def with_statustext(t: Telemetry, entry: StatusText) -> Telemetry:
+    """Append one whole text (keeping the last :data:`STATUSTEXT_KEEP`)."""
     return dataclasses.replace(t, statustexts=(*t.statustexts, entry)[-STATUSTEXT_KEEP:])
 
 
@@ -245,42 +264,50 @@ TRANSLATORS: dict[str, Callable[[Telemetry, object, float], Telemetry]] = {
     "EXTENDED_SYS_STATE": telemetry_from_extended_sys_state,
     "SYS_STATUS": telemetry_from_sys_status,
     "HOME_POSITION": telemetry_from_home_position,
-    "STATUSTEXT": telemetry_from_statustext,
+    "GPS_GLOBAL_ORIGIN": telemetry_from_gps_global_origin,
+    "GPS_RAW_INT": telemetry_from_gps_raw_int,
 }
 
 
 def update_telemetry(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Apply one decoded message; messages we do not translate leave ``t`` unchanged."""
+    """Apply one decoded message; messages we do not translate (STATUSTEXT among them) leave ``t`` unchanged."""
     translate = TRANSLATORS.get(msg.get_type())
     return translate(t, msg, now_s) if translate else t
 
 
-def map_offset(t: Telemetry, map_origin: Geodetic) -> LocalNED:
+def map_offset(t: Telemetry, map_origin: Geodetic, ground_amsl_m: float) -> LocalNED:
     """Offset from the autopilot's local frame to the map frame: ``map_ned = local_ned + offset``.
 
-    The map frame is NED at ``map_origin`` (lat0, lon0) with altitude 0 = home altitude. The local sample is
+    The map frame is NED at ``map_origin`` (lat0, lon0) with altitude 0 at the map's ground, ``ground_amsl_m``
+    metres above mean sea level; the vehicle's map altitude is ``alt_amsl_m - ground_amsl_m``. The local sample is
     extrapolated with its velocity to the global sample's time, so the two describe the same instant.
 
-    >>> t = Telemetry(lat_deg=37.79248, lon_deg=-122.39745, relative_alt_m=5.0, global_time_s=10.0,
+    >>> t = Telemetry(lat_deg=37.79248, lon_deg=-122.39745, alt_amsl_m=25.0, global_time_s=10.0,
     ...               north_m=1.0, east_m=2.0, down_m=-4.0, local_v_north_mps=2.0, local_v_east_mps=0.0,
     ...               local_v_down_mps=0.0, local_time_s=9.5)
-    >>> [round(v, 3) for v in map_offset(t, Geodetic(37.79248, -122.39745))]
+    >>> [round(v, 3) for v in map_offset(t, Geodetic(37.79248, -122.39745), ground_amsl_m=20.0)]
     [-2.0, -2.0, -1.0]
     """
     if not (t.has_global and t.has_local):
         raise ValueError("map_offset needs both GLOBAL_POSITION_INT and LOCAL_POSITION_NED")
+    if not math.isfinite(ground_amsl_m):
+        raise ValueError(f"map_offset needs a finite ground altitude, got {ground_amsl_m}")
     dt = t.global_time_s - t.local_time_s
     if not math.isfinite(dt) or abs(dt) > 1.0:
         dt = 0.0
     local = LocalNED(
         t.north_m + t.local_v_north_mps * dt, t.east_m + t.local_v_east_mps * dt, t.down_m + t.local_v_down_mps * dt
     )
-    horizontal = geodetic_to_ned(Geodetic(t.lat_deg, t.lon_deg, map_origin.alt_m), map_origin)
-    return LocalNED(horizontal.north_m - local.north_m, horizontal.east_m - local.east_m,
-                    -t.relative_alt_m - local.down_m)
+    here = map_position(t, map_origin, ground_amsl_m)
+    return LocalNED(here.north_m - local.north_m, here.east_m - local.east_m, here.down_m - local.down_m)
 
 
-def map_position(t: Telemetry, map_origin: Geodetic) -> LocalNED:
-    """The vehicle's map-frame position from its global position alone (down = ``-relative_alt_m``)."""
+def map_position(t: Telemetry, map_origin: Geodetic, ground_amsl_m: float) -> LocalNED:
+    """The vehicle's map-frame position from its global position alone (down = ``ground_amsl_m - alt_amsl_m``).
+
+    >>> t = Telemetry(lat_deg=37.79248, lon_deg=-122.39745, alt_amsl_m=7.5)
+    >>> map_position(t, Geodetic(37.79248, -122.39745), ground_amsl_m=2.5).altitude_m
+    5.0
+    """
     horizontal = geodetic_to_ned(Geodetic(t.lat_deg, t.lon_deg, map_origin.alt_m), map_origin)
-    return LocalNED(horizontal.north_m, horizontal.east_m, -t.relative_alt_m)
+    return LocalNED(horizontal.north_m, horizontal.east_m, ground_amsl_m - t.alt_amsl_m)

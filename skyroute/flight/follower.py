@@ -1,0 +1,105 @@
+"""Steering along a :class:`~skyroute.flight.path.SmoothPath`: the setpoint to send now, in the map frame.
+
+Pure functions, no vehicle and no clock. Each poll the follower predicts where the vehicle will be while this
+setpoint is the autopilot's latest (``ahead_s``: the link's round trip, the autopilot's response and one poll,
+at its current velocity) and commands the path point nearest to that, with the scheduled velocity along the path
+as a feed-forward: the autopilot flies the schedule and its position loop only corrects the cross-track error,
+so it neither brakes at each waypoint nor crawls behind a slow link.
+
+Last-command safety: if this setpoint is the last one the autopilot gets (a crashed client, a cut link), the
+autopilot keeps acting on it for a while (ArduCopter moves a position + velocity target on along the velocity
+for GUID_TIMEOUT, 3 s; PX4 overshoots the position by its feed-forward until COM_OF_LOSS_T) and then brakes:
+``limits.coast_m(speed)`` metres along the feed-forward. :func:`feedforward_cap_mps` keeps that straight
+continuation out of every building's planning margin (``clearance_fn``), so no single command can carry the
+vehicle into a building, whatever happens next.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .path import SmoothPath
+from .protocol import ClearanceFn, Limits
+
+#: Remaining path (m) from which the last waypoint is commanded as a plain position (no feed-forward): the
+#: autopilot's position loop stops there. Before that the braking schedule's feed-forward brings the vehicle in
+#: (handing PX4 a goal 17 m ahead at 10 m/s overshot it by 1.5 m, measured); only a vehicle coming in far faster
+#: than the schedule (it needs twice the remaining path to brake) gets the plain position earlier.
+FINAL_APPROACH_M = 1.0
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """What to command: ``position`` (3,) map ``[north_m, east_m, altitude_m]``, ``velocity`` (3,) map
+    ``[north, east, up]`` m/s or None (position only), ``heading_rad``, and ``ref_s`` (its arc length)."""
+
+    position: np.ndarray
+    velocity: np.ndarray | None
+    heading_rad: float
+    ref_s: float
+
+
+def feedforward_cap_mps(limits: Limits | None, clearance_fn: ClearanceFn | None, position, tangent,
+                        speed_mps: float) -> float:
+    """The fastest feed-forward along ``tangent`` from ``position`` whose coast stays clear (``speed_mps`` if
+    nothing limits it).
+
+    >>> class L:  # ArduCopter: 3 s of coasting, braking at 2.5 m/s^2
+    ...     def coast_m(self, v): return v * 3.0 + v * v / 5.0
+    ...     def speed_for_clearance_mps(self, c): return 2.5 * (-3.0 + math.sqrt(9.0 + 2.0 * c / 2.5))
+    >>> round(feedforward_cap_mps(L(), lambda n, e, a, dn, de, m: min(m, 20.0), (0, 0, 5), (1, 0, 0), 10.0), 3)
+    5.0
+    """
+    if limits is None or clearance_fn is None or not speed_mps > 0:
+        return speed_mps
+    horizontal = math.hypot(tangent[0], tangent[1])
+    if horizontal < 1e-6:
+        return speed_mps  # a climb or a descent: no horizontal coast
+    want_m = limits.coast_m(speed_mps)
+    clear_m = clearance_fn(float(position[0]), float(position[1]), float(position[2]),
+                           tangent[0] / horizontal, tangent[1] / horizontal, want_m + 1.0)
+    if clear_m >= want_m:
+        return speed_mps
+    # only the horizontal part coasts towards the building
+    return min(speed_mps, limits.speed_for_clearance_mps(clear_m) / horizontal)
+
+
+def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, ahead_s: float,
+          accel_mps2: float, velocity_lag_s: float, heading_rad: float, limits: Limits | None = None,
+          clearance_fn: ClearanceFn | None = None, previous_mps: float = 0.0, dt_s: float = 0.0,
+          max_lead_mps: float = 2.0, brake_lag_s: float = 0.0) -> Setpoint:
+    """The setpoint for a vehicle at ``position`` (map n, e, alt) moving at ``velocity`` (map n, e, up) that has
+    reached arc length ``s_m``; ``ref_s_m`` is the previous setpoint's (setpoints never go back along the path).
+
+    The feed-forward speed follows the path's schedule, speeding up from the previous command's
+    ``previous_mps`` by at most ``accel_mps2`` over ``dt_s`` (a real autopilot lags its command: ramping on the
+    measured speed would crawl), and never more than ``max_lead_mps`` beyond the measured speed plus what
+    ``accel_mps2`` adds over the prediction, so the autopilot keeps acceleration to spare for the cross-track
+    error (e.g. leaving an arc) and a blocked vehicle is not given a runaway command.
+
+    The feed-forward's direction is the path's ``velocity_lag_s`` ahead (the autopilot's velocity loop takes
+    about that long to turn); its speed is the schedule's ``max(velocity_lag_s, brake_lag_s)`` ahead, so an
+    autopilot that is slow to slow down (PX4, ~0.6 s) is told to brake that much earlier without turning early.
+    """
+    speed = float(np.linalg.norm(velocity))
+    predicted = np.asarray(position, float) + np.asarray(velocity, float) * ahead_s
+    ref_s = path.project(predicted, max(s_m, ref_s_m))
+    remaining_m = path.length_m - s_m
+    if remaining_m <= FINAL_APPROACH_M or speed**2 / (2 * accel_mps2) > 2.0 * remaining_m + FINAL_APPROACH_M:
+        ref_s = path.length_m  # the autopilot's position loop brakes to the goal from here (or it came in too fast)
+    target, _ = path.point_at(ref_s)
+    ff_s = min(ref_s + speed * velocity_lag_s, path.length_m)
+    brake_s = min(ref_s + speed * max(velocity_lag_s, brake_lag_s), path.length_m)
+    tangent = path.point_at(ff_s)[1]
+    if math.hypot(tangent[0], tangent[1]) > 0.1:
+        heading_rad = math.atan2(tangent[1], tangent[0]) % (2 * math.pi)
+    if ref_s >= path.length_m:
+        return Setpoint(target, None, heading_rad, ref_s)
+    ramp = max(previous_mps + accel_mps2 * dt_s, speed + accel_mps2 * max(ahead_s, 0.1))
+    wanted = min(path.speed_at(ff_s), path.speed_at(brake_s), ramp,
+                 speed + accel_mps2 * max(ahead_s, 0.1) + max_lead_mps)
+    wanted = feedforward_cap_mps(limits, clearance_fn, target, tangent, wanted)
+    return Setpoint(target, tangent * wanted, heading_rad, ref_s)

@@ -1,0 +1,135 @@
+"""Riding through a lost link or a lost flight mode in the air (a mixin of :class:`~.mission.Mission`).
+
+While the link is down the autopilot's failsafe owns the vehicle (PX4 holds or lands after COM_OF_LOSS_T,
+ArduCopter's GCS failsafe if enabled; the sender keeps re-sending our last setpoint without its feed-forward).
+When the link comes back within ``link_lost_timeout_s`` the mission reads the vehicle's real state: landed and
+disarmed -> say so and stop (never take off again on our own); in a pilot's mode (manual, position, altitude)
+that no failsafe explains -> hand over; otherwise take our flight mode back (bounded retries) and fly on from
+where the vehicle is, replanning if it is more than ``resume_off_path_m`` off the path.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from .errors import ControlTakenOver, LandedMeanwhile, LinkLostInFlight
+from .path import leg_headings, smooth_path
+from .states import MissionEvent as E
+from .states import MissionState as S
+
+log = logging.getLogger(__name__)
+
+
+class _Abort(Exception):
+    """Internal: a timeout or refusal during flight that must end in a landing."""
+
+
+class _Resumed(Exception):
+    """Internal: control was taken back after an outage or a lost mode: fly on from where the vehicle is."""
+
+
+class RecoveryMixin:
+    """The mission's RECOVERING state; uses the mission's vehicle, clock, sleep, progress and settings."""
+
+    def _link_lost(self) -> None:
+        if self.state is S.LANDING:
+            self._fire(E.LINK_LOST)
+            self._wait_for_link("the link was lost while landing")
+            return
+        if self.state in (S.TAKEOFF, S.WAYPOINT):
+            self._recover("the link was lost", link_lost=True)
+        self._wait_for_link(f"the link was lost in state {self.state.name}")
+
+    def _wait_for_link(self, why: str) -> None:
+        """Wait up to ``link_lost_timeout_s`` for the link (the autopilot's failsafe owns the vehicle meanwhile)."""
+        self._say(f"{why}: the autopilot's failsafe has the vehicle; waiting up to {self.link_lost_timeout_s:g} s "
+                  "for the link")
+        deadline = self.clock() + self.link_lost_timeout_s
+        while not self.vehicle.link_ok:
+            if self.clock() >= deadline:
+                state = self.state
+                self._fire(E.LINK_TIMEOUT if state in (S.RECOVERING, S.LANDING) else E.LINK_LOST)
+                raise LinkLostInFlight(f"{why} (state {state.name}) and stayed lost for {self.link_lost_timeout_s:g} "
+                                       "s; the autopilot's failsafe now owns the vehicle")
+            self.sleep(self.poll_s)
+        self._say("the link is back")
+        self.sleep(max(self.poll_s, 0.3))  # let a heartbeat and a position in after the outage
+
+    def _recover(self, why: str, *, link_lost: bool, retake: bool = False) -> None:
+        """RECOVERING: wait for the link, read the vehicle's real state, take control back; raises _Resumed."""
+        self._fire(E.LINK_LOST if link_lost else E.CONTROL_LOST)
+        self.result.recoveries += 1
+        log.warning("%s in flight; recovering", why)
+        if link_lost:
+            self._wait_for_link(why)
+        else:
+            self._say(why)
+        t = self.vehicle.telemetry
+        if not t.armed:
+            if t.on_ground:
+                self._fire(E.LANDED_MEANWHILE)
+                self._release()
+                p = self._map_position()
+                raise LandedMeanwhile(f"{why}; meanwhile the vehicle landed and disarmed at map ({p.north_m:.1f} N, "
+                                      f"{p.east_m:.1f} E): not taking off again on our own")
+            self._check_armed(why)
+        kind = getattr(self.vehicle.mode_kind(), "value", "other")
+        if kind == "pilot":
+            explained = "our link was silent" if link_lost else self.vehicle.failsafe_hint()
+            if explained is None:
+                self._fire(E.TAKEN_OVER)
+                self._release()
+                raise ControlTakenOver(f"a pilot took over: the vehicle is in {t.mode}, a mode we never select; "
+                                       "handed over")
+            log.warning("the autopilot is in %s after a failsafe (%s); taking control back", t.mode, explained)
+        if self.result.recoveries > self.max_recoveries:
+            self._fire(E.ABORT)
+            raise _Abort(f"{why}: control lost {self.result.recoveries} times, giving up")
+        if kind != "ours" or retake:
+            self._take_control(why)
+        self._fire(E.RESUMED)
+        self._say("control taken back: flying on from where the vehicle is")
+        raise _Resumed()
+
+    def _take_control(self, why: str) -> None:
+        for attempt in range(1, self.control_retries + 1):
+            try:
+                self.vehicle.take_control()
+                return
+            except self.vehicle_errors as exc:
+                log.warning("taking control back failed (attempt %d/%d): %s", attempt, self.control_retries, exc)
+                if attempt == self.control_retries:
+                    self._fire(E.ABORT)
+                    raise _Abort(f"{why}; could not take control back: {exc}") from exc
+                self.sleep(0.5)
+
+    def _resume_path(self, waypoints: np.ndarray) -> np.ndarray:
+        """The path to fly on with: the same one if the vehicle is near it, else a new plan from where it is."""
+        p = self._map_position()
+        s = self.speeds
+        path = smooth_path(waypoints, corner_cut_m=self.corner_cut_m, cruise_mps=s.cruise_mps)
+        s_now = path.project((p.north_m, p.east_m, p.altitude_m), self._progress_s)
+        off_m = math.dist(path.point_at(s_now)[0], (p.north_m, p.east_m, p.altitude_m))
+        if off_m <= self.resume_off_path_m:
+            log.info("resuming on the path (%.1f m off it)", off_m)
+            self._progress_s = s_now
+            return waypoints
+        self._say(f"the vehicle is {off_m:.1f} m off the path: replanning from where it is")
+        try:
+            new = np.array(self.plan_fn(p.north_m, p.east_m), dtype=float).reshape(-1, 4)
+        except Exception as exc:  # a planner that cannot plan from here: land where we are
+            raise _Abort(f"replanning from ({p.north_m:.1f} N, {p.east_m:.1f} E) failed: {exc}") from exc
+        if len(new) == 0:
+            raise _Abort("replanning returned no waypoints")
+        new[np.isnan(new[:, 2]), 2] = self.altitude_m
+        here = np.array([[p.north_m, p.east_m, p.altitude_m, 0.0]])
+        if p.altitude_m < new[0, 2] - self.altitude_tolerance_m:  # below the flight altitude: climb first
+            here = np.vstack([here, [p.north_m, p.east_m, new[0, 2], 0.0]])
+        path_wps = np.vstack([here, new])
+        path_wps[:, 3] = leg_headings(path_wps)
+        self._progress_s = 0.0
+        return path_wps
+

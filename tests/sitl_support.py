@@ -1,0 +1,362 @@
+"""Real autopilots for the tests: ArduCopter SITL and PX4 SITL (SIH) from ../shared/sitl, and an independent monitor.
+
+Where the binaries are: ``$SKYROUTE_SHARED/sitl`` if the environment variable is set, else ``../shared/sitl``
+beside the project root (the one rule; a user's fresh clone has neither, and the tests skip). Each autopilot runs
+in its own temporary directory and process group, on an instance number picked at run time among those whose
+ports are free (a hand-run instance or a parallel run cannot clash), and is stopped by its process group.
+
+:class:`Monitor` is a second MAVLink connection on the autopilot's ground-station port that records what the
+vehicle reports and checks it against the map's boxes with its own point-to-box distance and its own local
+WGS84 approximation: it shares no code with the client or the planner.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
+
+
+def shared_dir() -> Path:
+    """``$SKYROUTE_SHARED`` if set, else ``../shared`` next to the project root."""
+    env = os.environ.get("SKYROUTE_SHARED")
+    return Path(env) if env else ROOT.parent / "shared"
+
+
+def arducopter_binary() -> Path | None:
+    path = shared_dir() / "sitl" / "arducopter"
+    return path if path.is_file() and os.access(path, os.X_OK) else None
+
+
+def px4_binary() -> Path | None:
+    path = shared_dir() / "sitl" / "px4" / "bin" / "px4"
+    return path if path.is_file() and os.access(path, os.X_OK) else None
+
+
+# ------------------------------------------------------------------------------------------------ geometry
+def _radii_m(lat_deg: float) -> tuple[float, float]:
+    e2 = WGS84_F * (2 - WGS84_F)
+    w = 1 - e2 * math.sin(math.radians(lat_deg)) ** 2
+    return WGS84_A_M * (1 - e2) / w**1.5, WGS84_A_M / math.sqrt(w)
+
+
+def to_latlon(north_m: float, east_m: float, lat0: float, lon0: float) -> tuple[float, float]:
+    """Local tangent-plane offset on the WGS84 ellipsoid (cm over a few hundred metres)."""
+    meridional, normal = _radii_m(lat0)
+    return (lat0 + math.degrees(north_m / meridional),
+            lon0 + math.degrees(east_m / (normal * math.cos(math.radians(lat0)))))
+
+
+def to_north_east(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
+    meridional, normal = _radii_m(lat0)
+    return (math.radians(lat - lat0) * meridional,
+            math.radians(lon - lon0) * normal * math.cos(math.radians(lat0)))
+
+
+def read_boxes(path: Path) -> tuple[float, float, np.ndarray]:
+    """``(lat0, lon0, boxes)`` from a colliders.csv: boxes (N, 6) centre north/east/up and half sizes."""
+    first = path.read_text(encoding="utf-8").splitlines()[0]
+    lat0, lon0 = (float(part.split()[1]) for part in first.split(","))
+    return lat0, lon0, np.loadtxt(path, delimiter=",", skiprows=2, ndmin=2)
+
+
+def distance_to_boxes_m(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(P,) 3D distance from each point (north, east, up) to the nearest box (0 inside one)."""
+    lo, hi = boxes[:, :3] - boxes[:, 3:], boxes[:, :3] + boxes[:, 3:]
+    out = np.empty(len(points))
+    for k in range(0, len(points), 256):
+        p = points[k:k + 256, None, :]
+        gap = np.maximum(np.maximum(lo[None] - p, p - hi[None]), 0.0)
+        out[k:k + 256] = np.sqrt((gap**2).sum(axis=2)).min(axis=1)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ processes
+def _tcp_free(port: int) -> bool:
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    with socket.socket() as s:  # nobody listening either
+        s.settimeout(0.2)
+        return s.connect_ex(("127.0.0.1", port)) != 0
+
+
+def _udp_free(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def _stop_group(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
+    if proc.poll() is not None:
+        return
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=grace_s)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=grace_s)
+
+
+class ArduCopterSitl:
+    """ArduCopter SITL in a temporary directory: ``client`` (SERIAL1) and ``gcs`` (SERIAL2) TCP connections.
+
+    Boots without waiting for a client (``--serial0 tcp:0``), from a wiped eeprom unless ``wipe`` is False.
+    ``home`` is (lat, lon, alt AMSL m); ``extra`` more command-line arguments.
+    """
+
+    def __init__(self, home: tuple[float, float, float], *, speedup: float = 5.0, wipe: bool = True,
+                 instances=range(1, 40), extra: tuple[str, ...] = ()):
+        self.home, self.speedup, self.wipe, self.extra = home, speedup, wipe, extra
+        self.instance = next((n for n in instances
+                              if all(_tcp_free(5760 + 10 * n + k) for k in (0, 2, 3))), None)
+        if self.instance is None:
+            raise RuntimeError("no free ArduCopter SITL instance (ports 5760+10N..5763+10N all busy)")
+        self.dir = Path(tempfile.mkdtemp(prefix="skyroute-arducopter-"))
+        self.proc: subprocess.Popen | None = None
+
+    @property
+    def client(self) -> str:
+        return f"tcp:127.0.0.1:{5762 + 10 * self.instance}"
+
+    @property
+    def gcs(self) -> str:
+        return f"tcp:127.0.0.1:{5763 + 10 * self.instance}"
+
+    def start(self) -> ArduCopterSitl:
+        sitl = shared_dir() / "sitl"
+        lat, lon, alt = self.home
+        cmd = [str(sitl / "arducopter"), "--model", "+", "--speedup", f"{self.speedup:g}", "--defaults",
+               str(sitl / "copter.parm"), "-I", str(self.instance), "--home", f"{lat:.7f},{lon:.7f},{alt:g},0",
+               "--serial0", "tcp:0", *(["--wipe"] if self.wipe else []), *self.extra]
+        self.log = open(self.dir / "arducopter.log", "w")  # noqa: SIM115 (closed in stop())
+        self.proc = subprocess.Popen(cmd, cwd=self.dir, stdout=self.log, stderr=subprocess.STDOUT,
+                                     stdin=subprocess.DEVNULL, start_new_session=True)
+        deadline = time.monotonic() + 20.0
+        port = 5762 + 10 * self.instance
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"arducopter exited ({self.proc.returncode}); see {self.dir / 'arducopter.log'}")
+            with socket.socket() as s:
+                s.settimeout(0.2)
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    return self
+            time.sleep(0.1)
+        raise RuntimeError("arducopter did not open its ports within 20 s")
+
+    def stop(self) -> None:
+        if self.proc is not None:
+            _stop_group(self.proc)
+            self.log.close()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def __enter__(self) -> ArduCopterSitl:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+class Px4Sitl:
+    """PX4 SITL with SIH in a temporary directory; ``client`` is its offboard link, ``gcs`` its GCS link.
+
+    The shared ``px4/bin`` holds PX4's command links as plain files (the copy lost the symlinks), which the
+    startup script cannot run; the run directory gets its own ``bin/`` with ``px4-*`` symlinks to the binary.
+    ``fast_align`` sets PX4_EKF2_FAST_ALIGN=1 (global position in ~2.5 s instead of ~35 s).
+    """
+
+    def __init__(self, home: tuple[float, float, float], *, fast_align: bool = False, instances=range(1, 10)):
+        self.home, self.fast_align = home, fast_align
+        self.instance = next((n for n in instances if all(_udp_free(p + n) for p in (14540, 14580, 18570, 14280,
+                                                                                      13030, 19450))
+                              and not Path(f"/tmp/px4_lock-{n}").exists()), None)
+        if self.instance is None:
+            raise RuntimeError("no free PX4 SITL instance (1..9)")
+        self.dir = Path(tempfile.mkdtemp(prefix="skyroute-px4-"))
+        self.proc: subprocess.Popen | None = None
+
+    @property
+    def client(self) -> str:
+        return f"udpin:127.0.0.1:{14540 + self.instance}"
+
+    @property
+    def gcs(self) -> str:
+        return f"udpout:127.0.0.1:{18570 + self.instance}"
+
+    def start(self) -> Px4Sitl:
+        shared = shared_dir() / "sitl" / "px4"
+        bin_dir = self.dir / "bin"
+        bin_dir.mkdir()
+        (bin_dir / "px4").symlink_to(shared / "bin" / "px4")
+        for item in (shared / "bin").iterdir():
+            if item.name.startswith("px4-") and item.name != "px4-alias.sh":
+                (bin_dir / item.name).symlink_to("px4")
+        shutil.copy(shared / "bin" / "px4-alias.sh", bin_dir / "px4-alias.sh")
+        lat, lon, alt = self.home
+        env = {**os.environ, "PX4_SYS_AUTOSTART": "10040", "PX4_SIM_MODEL": "sihsim_quadx",
+               "PX4_HOME_LAT": f"{lat:.7f}", "PX4_HOME_LON": f"{lon:.7f}", "PX4_HOME_ALT": f"{alt:g}"}
+        if self.fast_align:
+            env["PX4_EKF2_FAST_ALIGN"] = "1"
+        self.log = open(self.dir / "px4.log", "w")  # noqa: SIM115 (closed in stop())
+        self.proc = subprocess.Popen([str(bin_dir / "px4"), "-d", "-i", str(self.instance), str(shared / "etc")],
+                                     cwd=self.dir, env=env, stdout=self.log, stderr=subprocess.STDOUT,
+                                     stdin=subprocess.DEVNULL, start_new_session=True)
+        time.sleep(1.0)
+        if self.proc.poll() is not None:
+            raise RuntimeError(f"px4 exited ({self.proc.returncode}); see {self.dir / 'px4.log'}")
+        return self
+
+    def stop(self) -> None:
+        if self.proc is not None:
+            _stop_group(self.proc)
+            self.log.close()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def __enter__(self) -> Px4Sitl:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+# ------------------------------------------------------------------------------------------------- monitor
+@dataclass
+class Sample:
+    time_s: float
+    north_m: float
+    east_m: float
+    up_m: float  # above the map's ground
+    speed_mps: float
+    armed: bool
+    mode: str
+
+
+@dataclass
+class Monitor:
+    """A ground station of its own (system 250) on the autopilot's GCS port, recording the reported track.
+
+    ``ground_amsl_m`` is the map ground's altitude above sea level in this test (the truth, known to the test).
+    """
+
+    connection: str
+    map_path: Path
+    ground_amsl_m: float
+    samples: list[Sample] = field(default_factory=list)
+    texts: list[str] = field(default_factory=list)
+
+    def __post_init__(self):
+        from pymavlink import mavutil
+
+        self.lat0, self.lon0, self.boxes = read_boxes(self.map_path)
+        self._mav = mavutil.mavlink_connection(self.connection, source_system=250, source_component=190,
+                                               autoreconnect=False, retries=10)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._armed, self._mode = False, ""
+        self.sysid = None  # PX4 SITL instance N is system N + 1; learnt from the first autopilot heartbeat
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        from pymavlink import mavutil
+
+        mav = self._mav
+        next_ask, next_beat = 0.0, 0.0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            try:  # a UDP peer not listening yet answers with ICMP: OSError on the next send or receive
+                if now >= next_beat:
+                    next_beat = now + 1.0
+                    mav.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0,
+                                           0, 0)
+                if now >= next_ask and self.sysid is not None:  # ArduPilot streams on this port only once asked
+                    next_ask = now + 5.0
+                    mav.mav.command_long_send(self.sysid, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                              mavutil.mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 1e5, 0, 0, 0, 0, 0)
+                msg = mav.recv_match(blocking=True, timeout=0.1)
+            except OSError:
+                time.sleep(0.1)
+                continue
+            if msg is None:
+                continue
+            kind = msg.get_type()
+            if self.sysid is None and kind == "HEARTBEAT" and msg.get_srcComponent() == 1 \
+                    and msg.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID:
+                self.sysid = msg.get_srcSystem()
+            if msg.get_srcSystem() != self.sysid or msg.get_srcComponent() != 1:
+                continue
+            if kind == "HEARTBEAT":
+                self._armed = bool(msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                self._mode = mavutil.mode_string_v10(msg)
+            elif kind == "STATUSTEXT":
+                with self._lock:
+                    self.texts.append(str(msg.text))
+            elif kind == "GLOBAL_POSITION_INT" and (msg.lat or msg.lon):
+                north, east = to_north_east(msg.lat * 1e-7, msg.lon * 1e-7, self.lat0, self.lon0)
+                with self._lock:
+                    self.samples.append(Sample(now, north, east, msg.alt * 1e-3 - self.ground_amsl_m,
+                                               math.hypot(msg.vx, msg.vy) / 100.0, self._armed, self._mode))
+
+    def send(self, build) -> None:
+        """Send one message built by ``build(mav, sysid)`` on the monitor's own link (e.g. to land a vehicle)."""
+        build(self._mav.mav, self.sysid)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self._mav.close()
+
+    def track(self, since_s: float = -math.inf) -> list[Sample]:
+        with self._lock:
+            return [s for s in self.samples if s.time_s >= since_s]
+
+    def latest(self) -> Sample | None:
+        with self._lock:
+            return self.samples[-1] if self.samples else None
+
+    def wait(self, predicate, timeout_s: float, what: str) -> Sample:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            s = self.latest()
+            if s is not None and predicate(s):
+                return s
+            time.sleep(0.05)
+        raise AssertionError(f"monitor: no {what} within {timeout_s:g} s (last {self.latest()})")
+
+    def landed_at(self, settle_s: float = 2.0, timeout_s: float = 60.0) -> tuple[float, float, float]:
+        """``(north_m, east_m, up_m)`` where the vehicle stands once disarmed: the median of ``settle_s`` of reports
+        (PX4 SIH's reported position jitters by ~0.5 m on the ground)."""
+        self.wait(lambda s: not s.armed, timeout_s, "disarmed vehicle")
+        since = time.monotonic()
+        time.sleep(settle_s)
+        points = np.array([(s.north_m, s.east_m, s.up_m) for s in self.track(since) if not s.armed])
+        return tuple(float(v) for v in np.median(points, axis=0))
+
+    def min_clearance_m(self, since_s: float = -math.inf, above_m: float = 0.5, ignore=()) -> float:
+        """Smallest distance from the reported track (while ``above_m`` above the ground) to any box but the
+        ``ignore`` ones (row numbers, e.g. the roof it took off from)."""
+        points = np.array([(s.north_m, s.east_m, s.up_m) for s in self.track(since_s) if s.up_m > above_m])
+        boxes = np.delete(self.boxes, list(ignore), axis=0)
+        return float(distance_to_boxes_m(points, boxes).min()) if len(points) else math.inf

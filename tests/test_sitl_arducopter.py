@@ -1,0 +1,202 @@
+"""End to end against a real ArduCopter (SITL, ../shared/sitl): a fresh boot, a second mission, Ctrl-C, a killed
+client, an elevated start, signing.
+
+ArduCopter knows nothing of our city: an independent monitor on its ground-station port (tests/sitl_support.py)
+checks every reported position against the map's boxes with its own point-to-box distance, and judges where the
+vehicle landed with its own WGS84 approximation. ``--speedup 5``; skipped where the binary is absent.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import motion_planning as mp
+from tests.sitl_support import ROOT, ArduCopterSitl, Monitor, arducopter_binary, read_boxes, to_latlon
+
+pytestmark = [pytest.mark.sitl, pytest.mark.skipif(arducopter_binary() is None,
+                                                   reason="ArduCopter SITL not found ($SKYROUTE_SHARED or ../shared)")]
+
+MAP = mp.DEFAULT_MAP
+LAT0, LON0, BOXES = read_boxes(MAP)
+ALT_M, SAFETY_M = 5.0, 5.0
+GOAL_NEAR = (129.5, -57.5)  # four legs round the blocks; the third corner's straight continuation hits a block
+GOAL_SHORT = (99.5, 50.5)
+HOME_GOAL = (0.5, 0.5)
+
+
+def goal_args(north_m: float, east_m: float) -> list[str]:
+    lat, lon = to_latlon(north_m, east_m, LAT0, LON0)
+    return ["--goal_lat", f"{lat:.9f}", "--goal_lon", f"{lon:.9f}"]
+
+
+def mission_args(sitl, goal, tmp_path, *extra) -> list[str]:
+    return [*goal_args(*goal), "--alt", f"{ALT_M:g}", "--safety", f"{SAFETY_M:g}", "--connection", sitl.client,
+            "--timeout", "20", "--arm-timeout", "120", "--log-dir", str(tmp_path / "logs"), *extra]
+
+
+def assert_landed_safely_at(monitor: Monitor, goal, since_s: float) -> None:
+    north, east, _ = monitor.landed_at()
+    error_m = math.hypot(north - goal[0], east - goal[1])
+    clearance_m = monitor.min_clearance_m(since_s)
+    print(f"\nlanded {error_m:.2f} m from the goal, min clearance {clearance_m:.2f} m")
+    assert error_m <= 1.0 and clearance_m >= SAFETY_M - 1.5
+
+
+@pytest.fixture(scope="module")
+def copter():
+    """One ArduCopter booted from a wiped eeprom at the map's home, and a monitor on its second port."""
+    with ArduCopterSitl((LAT0, LON0, 0.0)) as sitl:
+        monitor = Monitor(sitl.gcs, MAP, ground_amsl_m=0.0)
+        try:
+            yield sitl, monitor
+        finally:
+            monitor.close()
+
+
+def test_a_fresh_boot_flies_then_a_second_and_third_mission_on_the_same_autopilot(copter, tmp_path, capsys):
+    sitl, monitor = copter
+    started = time.monotonic()
+    code = mp.main(mission_args(sitl, GOAL_NEAR, tmp_path))
+    out, err = capsys.readouterr()
+    assert code == mp.EXIT_OK, err
+    lines = out.splitlines()
+    # it waited for the estimator (LOCAL_POSITION_NED only once the EKF uses GPS) with progress lines...
+    assert any(line.startswith("waiting for ") and "local position estimate" in line for line in lines)
+    # ... read the failsafe parameters and said what a lost link would do
+    assert any("warning: ArduCopter's GCS failsafe is off (FS_GCS_ENABLE=0)" in line for line in lines)
+    assert any(line.startswith("mission complete:") for line in lines)
+    assert_landed_safely_at(monitor, GOAL_NEAR, started)
+    # the vehicle is left in LAND: the next missions select GUIDED before arming
+    for goal in (GOAL_SHORT, HOME_GOAL):
+        started = time.monotonic()
+        code = mp.main(mission_args(sitl, goal, tmp_path))
+        out, err = capsys.readouterr()
+        assert code == mp.EXIT_OK, err
+        assert_landed_safely_at(monitor, goal, started)
+
+
+def run_client(args: list[str]) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, str(ROOT / "motion_planning.py"), *args], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def test_ctrl_c_in_flight_lands_where_it_is(copter, tmp_path):
+    sitl, monitor = copter
+    proc = run_client(mission_args(sitl, GOAL_SHORT, tmp_path))
+    try:
+        at = monitor.wait(lambda s: s.armed and s.up_m > 3.0 and s.speed_mps > 2.0, 90.0, "a vehicle flying")
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=90)
+    finally:
+        proc.kill()
+    assert proc.returncode == mp.EXIT_INTERRUPTED, err
+    assert "interrupted: the vehicle was landed and disarmed first" in err
+    north, east, up = monitor.landed_at()
+    assert up < 0.5 and math.hypot(north - at.north_m, east - at.east_m) < 15.0  # landed where it was
+    # and home again for the next test
+    assert mp.main(mission_args(sitl, HOME_GOAL, tmp_path, "-q")) == mp.EXIT_OK
+
+
+def test_a_killed_client_leaves_the_vehicle_short_of_the_buildings(copter, tmp_path):
+    """The bound: the last command's straight coast (GUID_TIMEOUT at its feed-forward, then braking at
+    WPNAV_ACCEL) stays out of every building's planning margin less 1 m; killed 12 m before a corner whose
+    straight continuation meets a block 3.5 m past it."""
+    sitl, monitor = copter
+    out = io.StringIO()
+    assert mp.run(**{"goal_lat": to_latlon(*GOAL_NEAR, LAT0, LON0)[0], "goal_lon": to_latlon(*GOAL_NEAR, LAT0,
+                  LON0)[1], "plan_only": True, "json_output": True, "out": out}) == mp.EXIT_OK
+    wps = np.array(json.loads(out.getvalue())["waypoints"])[:, :2]
+    corner, before = wps[2], wps[1]
+    proc = run_client(mission_args(sitl, GOAL_NEAR, tmp_path))
+    try:
+        killed = monitor.wait(lambda s: s.armed and s.up_m > 3.0
+                              and math.dist((s.north_m, s.east_m), corner) < 12.0
+                              and math.dist((s.north_m, s.east_m), before) > 5.0, 120.0, "the third leg")
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.communicate(timeout=10)
+        killed_s = time.monotonic()
+        # ArduCopter keeps the last target moving for GUID_TIMEOUT (3 s sim = 0.6 s wall), brakes, then hovers
+        monitor.wait(lambda s: time.monotonic() - killed_s > 3.0 and s.speed_mps < 0.3, 30.0, "the vehicle stopped")
+        stopped = monitor.latest()
+        clearance = monitor.min_clearance_m(killed_s)
+        print(f"\nkilled at ({killed.north_m:.1f} N, {killed.east_m:.1f} E) at {killed.speed_mps:.1f} m/s; stopped "
+              f"{math.dist((stopped.north_m, stopped.east_m), (killed.north_m, killed.east_m)):.1f} m on, min "
+              f"clearance after the kill {clearance:.2f} m")
+        assert stopped.armed and stopped.up_m > 3.0  # still flying (FS_GCS_ENABLE=0): nothing else intervened
+        assert clearance >= SAFETY_M - 1.5
+    finally:
+        proc.kill()
+        land(monitor)
+
+
+def land(monitor: Monitor) -> None:
+    """Land the vehicle from the monitor's own link (ArduCopter LAND mode) and wait for the disarm."""
+    from pymavlink import mavutil
+
+    for _ in range(3):
+        monitor.send(lambda mav, sysid: mav.command_long_send(sysid, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0, 1, 9,
+                                                               0, 0, 0, 0, 0))
+        time.sleep(0.3)
+    monitor.wait(lambda s: not s.armed, 60.0, "the vehicle landed and disarmed")
+
+
+def test_an_elevated_start_keeps_map_altitudes_above_the_maps_ground(tmp_path, capsys):
+    # The map's ground lies 20 m above sea level and the vehicle boots on a 7.2 m block there (20 m from any
+    # taller one): home is at 27.2 m. Flying at 15 m above the map's ground is 35 m AMSL; taking home as
+    # altitude 0 would fly at 42.2 m.
+    ground_m, roof = 20.0, (12.0, 26.4)
+    (row,) = [k for k, b in enumerate(BOXES) if abs(b[0] - roof[0]) < 0.1 and abs(b[1] - roof[1]) < 0.1]
+    top_m = BOXES[row, 2] + BOXES[row, 5]
+    lat, lon = to_latlon(*roof, LAT0, LON0)
+    with ArduCopterSitl((lat, lon, ground_m + top_m)) as sitl:
+        monitor = Monitor(sitl.gcs, MAP, ground_amsl_m=ground_m)
+        try:
+            code = mp.main([*goal_args(*GOAL_SHORT), "--alt", "15", "--safety", f"{SAFETY_M:g}", "--connection",
+                            sitl.client, "--timeout", "20", "--arm-timeout", "120", "--log-dir",
+                            str(tmp_path / "logs")])
+            out, err = capsys.readouterr()
+            assert code == mp.EXIT_OK, err
+            lines = out.splitlines()
+            assert any(line.startswith("map ground at 20.") and f"stands on a {top_m:.1f} m roof" in line
+                       for line in lines)
+            cruise = [s.up_m for s in monitor.track() if s.speed_mps > 2.0]
+            assert cruise and abs(float(np.median(cruise)) - 15.0) < 1.0
+            monitor.wait(lambda s: not s.armed, 30.0, "disarmed vehicle")
+            # in the air, away from the roof it climbed off (SITL's flat world lies at the roof's height: it touches
+            # down 7.2 m up at the goal)
+            assert monitor.min_clearance_m(above_m=top_m + 1.5, ignore=[row]) >= SAFETY_M - 1.5
+        finally:
+            monitor.close()
+
+
+def test_signed_link_flies_and_unsigned_commands_are_ignored(tmp_path, capsys):
+    from pymavlink import mavutil
+
+    from skyroute.vehicle import signing_key
+
+    passphrase = "skyroute e2e signing"
+    with ArduCopterSitl((LAT0, LON0, 0.0)) as sitl:
+        setup = mavutil.mavlink_connection(sitl.gcs, source_system=250, source_component=190)
+        try:
+            setup.wait_heartbeat(timeout=20)
+            stamp = int((time.time() - 1420070400) * 1e5)  # 10 us since 2015, as MAVProxy's `signing setup`
+            setup.mav.setup_signing_send(1, 1, signing_key(passphrase), stamp)
+            time.sleep(1.0)
+            setup.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0)
+            assert setup.recv_match(type="COMMAND_ACK", blocking=True, timeout=3.0) is None  # unsigned: ignored
+        finally:
+            setup.close()
+        code = mp.main([*mission_args(sitl, GOAL_SHORT, tmp_path), "--signing-key", passphrase])
+        out, err = capsys.readouterr()
+        assert code == mp.EXIT_OK, err
+        assert any(line.startswith("mission complete:") for line in out.splitlines())

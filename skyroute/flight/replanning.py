@@ -183,3 +183,143 @@ class Sensing:
         if self.obstacles is None:
             return np.empty((0, 2))
         return np.asarray(self.obstacles.discovered_ne(), float).reshape(-1, 2)
+
+
+class _Blocked(Exception):
+    """Internal: the sensing step found the rest of the path blocked; carries the blockage."""
+
+    def __init__(self, blockage: Blockage):
+        super().__init__(f"path {blockage.reason} {blockage.along_m:.1f} m ahead")
+        self.blockage = blockage
+
+
+class ReplanningMixin:
+    """The mission's REPLANNING state (a mixin of :class:`~.mission.Mission`; uses its vehicle, clock, progress,
+    speeds, ``sensing``, ``replan_errors``, ``replan_margin_m``, ``max_replans`` and ``result``)."""
+
+    _target_ne: tuple[float, float] | None = None
+    _unreachable: str | None = None
+    _pending: ReplanRecord | None = None
+
+    @property
+    def discovered_obstacles(self) -> np.ndarray:
+        """Observed obstacle cells as ``(K, 6)`` boxes (1 m squares up to twice the flight altitude), for the view."""
+        pts = self.sensing.discovered_ne()
+        top = 2.0 * self.altitude_m
+        out = np.empty((len(pts), 6))
+        out[:, :2] = pts
+        out[:, 2] = out[:, 5] = top / 2.0
+        out[:, 3] = out[:, 4] = 0.5
+        return out
+
+    def _sense(self, p, waypoints: np.ndarray, i: int) -> None:
+        """Feed the readings and check the rest of the path (from the vehicle through waypoints ``i:``)."""
+        blockage = self.sensing.step((p.north_m, p.east_m), waypoints[i:, :2])
+        if blockage is not None:
+            raise _Blocked(blockage)
+
+    def _replan_in_flight(self, blockage: Blockage) -> np.ndarray:
+        """PATH_BLOCKED -> REPLANNING -> WAYPOINT: brake first if the vehicle cannot stop short of the obstacle,
+        then a new route from where it is (to the goal, or to the fallback point once the goal is out of reach)."""
+        from .states import MissionEvent as E
+
+        self._fire(E.PATH_BLOCKED)
+        if len(self.sensing.records) >= self.max_replans:
+            raise _abort(f"{self.max_replans} replans and still blocked")
+        t = self.vehicle.telemetry
+        speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
+        braked = not can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m)
+        if braked:
+            self._brake()
+        p = self._map_position()
+        here = (p.north_m, p.east_m)
+        self.sensing.drain(here)
+        target = self._target_ne
+        try:
+            route = (self.sensing.obstacles.replan(here) if target is None
+                     else self.sensing.obstacles.route_to(here, target))
+        except self.replan_errors as exc:
+            return self._goal_out_of_reach(exc, blockage, braked, p)
+        waypoints = self._flight_waypoints(route.waypoints, p)
+        self._pending = ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
+                                     float(route.plan_ms), math.nan, braked, waypoints)
+        self._say(f"obstacle on the path {blockage.along_m:.0f} m ahead ({blockage.reason}): "
+                  f"{'braked and ' if braked else ''}replanned in {route.plan_ms:.0f} ms")
+        self._fire(E.REPLANNED)
+        return waypoints
+
+    def _flight_waypoints(self, waypoints: np.ndarray, p) -> np.ndarray:
+        from .path import leg_headings
+
+        wps = np.array(waypoints, dtype=float).reshape(-1, 4)
+        wps[np.isnan(wps[:, 2]), 2] = self.altitude_m
+        wps[0, :3] = (p.north_m, p.east_m, wps[0, 2])
+        wps[:, 3] = leg_headings(wps)
+        self.result.waypoints = wps
+        self._progress_s = 0.0
+        return wps
+
+    def _brake(self) -> None:
+        """Command a hold where the vehicle is and wait (bounded) until it has nearly stopped."""
+        p = self._map_position()
+        target = self._to_local(p.north_m, p.east_m, p.altitude_m)
+        heading = float(getattr(self.vehicle.telemetry, "heading_rad", 0.0) or 0.0)
+        deadline = self.clock() + 10.0
+        while self.clock() < deadline:
+            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading, velocity_ned=None)
+            t = self.vehicle.telemetry
+            if math.hypot(t.local_v_north_mps, t.local_v_east_mps) <= 2.0 * self.stop_speed_mps:
+                return
+            self._tick()
+
+    def _goal_out_of_reach(self, exc: Exception, blockage: Blockage, braked: bool, p) -> np.ndarray:
+        """Hold, say so, and fly to the nearest reachable safe point (or stay here) to land there."""
+        from .states import MissionEvent as E
+
+        if not braked:
+            self._brake()
+            p = self._map_position()
+        why = str(exc)
+        self._unreachable = why
+        self._say(f"{why}: holding; landing at the nearest reachable safe point")
+        log.warning("goal out of reach: %s", why)
+        self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
+                                         math.nan, math.nan, True, None, outcome=why))
+        fallback = getattr(exc, "fallback_ne", None)
+        here = (p.north_m, p.east_m)
+        route = None
+        if fallback is not None and math.dist(fallback, here) > 1.0:
+            self._target_ne = (float(fallback[0]), float(fallback[1]))
+            try:
+                route = self.sensing.obstacles.route_to(here, self._target_ne)
+            except self.replan_errors as again:
+                log.warning("no route to the fallback point either: %s", again)
+        self._fire(E.GOAL_UNREACHABLE)
+        if route is None:
+            self._target_ne = here
+            return self._flight_waypoints(np.array([[p.north_m, p.east_m, self.altitude_m, 0.0]]), p)
+        return self._flight_waypoints(route.waypoints, p)
+
+    def _setpoint_sent(self) -> None:
+        """After a setpoint: the first one of a new route closes its replan record with the latency."""
+        if self._pending is not None:
+            rec = self._pending
+            self._pending = None
+            latency = self.sensing.latency_ms()
+            self.sensing.record(ReplanRecord(rec.time_s, rec.north_m, rec.east_m, rec.reason, rec.along_m,
+                                             rec.plan_ms, latency, rec.braked, rec.waypoints, rec.outcome))
+
+    def _check_reached_goal(self) -> None:
+        """After landing: a mission whose goal went out of reach ends in an error (the CLI exits 1)."""
+        from .errors import GoalUnreachableInFlight
+
+        if self._unreachable is not None:
+            p = self._map_position()
+            raise GoalUnreachableInFlight(f"{self._unreachable}; landed at map ({p.north_m:.1f} N, {p.east_m:.1f} E) "
+                                          "instead of the goal")
+
+
+def _abort(why: str) -> Exception:
+    from .recovery import _Abort
+
+    return _Abort(why)

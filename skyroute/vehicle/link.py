@@ -37,6 +37,7 @@ from .commands import Commander
 from .errors import ConnectionTimeout, LinkLost, TelemetryTimeout, VehicleError
 from .health import LinkHealth
 from .params import bytewise_encoding, decode_param_value, param_name
+from .sensors import SensorFeed
 from .statustext import StatusTextAssembler, refusal_reason
 from .streams import ARDUPILOT_GROUPS, StreamKeeper
 from .telemetry import Autopilot, Telemetry, is_autopilot_heartbeat, update_telemetry, with_statustext
@@ -100,6 +101,9 @@ class MavlinkLink:
     setpoint_rate_hz, telemetry_rate_hz, local_position_rate_hz : float
         Setpoint re-send rate while in control; requested rate of position/attitude messages; of
         LOCAL_POSITION_NED, which the mission steers by (40 bytes a message: 2 kB/s at 50 Hz).
+    sensor_rate_hz : float
+        Requested rate of DISTANCE_SENSOR (ArduPilot sends its proximity sectors and rangefinders only when asked;
+        PX4 streams OBSTACLE_DISTANCE on its onboard link by itself). Readings go to :attr:`sensors`.
     feedforward_timeout_s : float
         Re-sends drop the velocity feed-forward once it is older than this (the vehicle then brakes at the
         position), so a stalled mission never keeps the vehicle coasting on.
@@ -128,6 +132,7 @@ class MavlinkLink:
         telemetry_rate_hz: float = 10.0,
         feedforward_timeout_s: float = 0.5,
         local_position_rate_hz: float = 50.0,
+        sensor_rate_hz: float = 10.0,
         source_system: int = DEFAULT_SOURCE_SYSTEM,
         source_component: int = DEFAULT_SOURCE_COMPONENT,
         tlog_path: str | os.PathLike | None = None,
@@ -152,7 +157,8 @@ class MavlinkLink:
             "GLOBAL_POSITION_INT": telemetry_rate_hz,
             "LOCAL_POSITION_NED": max(telemetry_rate_hz, local_position_rate_hz),
             "ATTITUDE": telemetry_rate_hz, "EXTENDED_SYS_STATE": telemetry_rate_hz, "SYS_STATUS": 1.0,
-            "GPS_RAW_INT": 2.0})
+            "GPS_RAW_INT": 2.0, "DISTANCE_SENSOR": sensor_rate_hz})
+        self.sensors = SensorFeed()  # obstacle sensor readings (skyroute.vehicle.sensors), drained by the mission
         self._once_received: set[str] = set()
         self._timesyncs: dict[int, float] = {}
         self._setpoint: _Setpoint | None = None
@@ -242,6 +248,20 @@ class MavlinkLink:
     def round_trip_s(self) -> float:
         """Measured round trip to the autopilot (s, TIMESYNC and acks; 0 before the first sample)."""
         return self.health.rtt_s
+
+    @property
+    def sensing(self) -> bool:
+        """True while the autopilot streams horizontal obstacle data (OBSTACLE_DISTANCE, proximity sectors)."""
+        return self.sensors.streaming
+
+    def sensor_readings(self) -> list:
+        """Every obstacle sensor reading since the last call (:class:`~.sensors.RangeScan`, :class:`~.sensors.
+        HeightReading`), oldest first."""
+        return self.sensors.drain()
+
+    def wait_sensor(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for a sensor reading; True if one is queued."""
+        return self.sensors.wait(timeout_s)
 
     def check_link(self) -> None:
         """Raise :class:`LinkLost` when the autopilot has been silent for longer than the link timeout."""
@@ -476,6 +496,8 @@ class MavlinkLink:
                     self._telemetry = with_statustext(self._telemetry, entry)
                     level = logging.WARNING if entry.severity <= mavlink.MAV_SEVERITY_ERROR else logging.INFO
                     log.log(level, "autopilot says: %s", entry.text)
+            elif mtype in SensorFeed.MESSAGES:
+                self.sensors.handle(msg, now, self._telemetry.heading_rad)
             else:
                 self._telemetry = update_telemetry(self._telemetry, msg, now)
             self._cond.notify_all()

@@ -35,13 +35,11 @@ SENSORS = (
     | M.MAV_SYS_STATUS_PREARM_CHECK
 )
 
-CAPABILITIES = (
-    M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-    | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-    | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
-    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-)
+#: AUTOPILOT_VERSION.capabilities as the real autopilots send them (measured on PX4 1.15.4 and ArduCopter 4.7.0-dev
+#: SITL). PX4's includes MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE: its integer parameters come bytewise
+#: (sim.params), which a client reads from this bit.
+CAPABILITIES_PX4 = 0xE8FF
+CAPABILITIES_ARDUPILOT = 0xFBEF
 
 
 @dataclass
@@ -199,8 +197,9 @@ def battery_status(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
 
 
 def autopilot_version(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
+    capabilities = CAPABILITIES_PX4 if s.autopilot == M.MAV_AUTOPILOT_PX4 else CAPABILITIES_ARDUPILOT
     return mavlink.MAVLink_autopilot_version_message(
-        CAPABILITIES, 0x01000000, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5349_4D00_0000_0001
+        capabilities, 0x01000000, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5349_4D00_0000_0001
     )
 
 

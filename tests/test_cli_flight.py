@@ -105,6 +105,9 @@ def start_sim(sim_start):
         kwargs.setdefault("strict", True)
         kwargs.setdefault("speedup", SPEEDUP)
         kwargs.setdefault("map_path", mp.DEFAULT_MAP)
+        # PX4 SITL's startup script multiplies its link-loss timeouts by the speed factor; without it a 1 Hz
+        # heartbeat paced on the wall clock is 20 s of the sim's time at 20x, past COM_DL_LOSS_T
+        kwargs.setdefault("scale_timeouts", True)
         return sim_start(**kwargs)
 
     return start
@@ -126,6 +129,11 @@ def assert_down_and_disarmed(report: dict) -> None:
     final = report["final"]
     assert not final["armed"] and final["on_ground"] and not final["crashed"]
     assert not report["collisions"]
+
+
+def assert_no_failsafe(report: dict) -> None:
+    """A nominal flight never trips one of the autopilot's failsafes (offboard loss, ground-station loss)."""
+    assert not [e for e in report["events"] if e["kind"] == "failsafe"]
 
 
 def assert_never_armed(report: dict) -> None:
@@ -165,6 +173,7 @@ def test_mission_lands_at_the_goal(start_sim, tmp_path, capsys, autopilot, start
     assert report["min_clearance_m"] >= SAFETY_M - 1.0
     assert report["max_height_above_home_m"] == pytest.approx(ALT_M, abs=1.0)
     assert_down_and_disarmed(report)
+    assert_no_failsafe(report)
     print(f"\n{autopilot}/{origin}: landing error {error_m:.2f} m, min clearance {report['min_clearance_m']:.2f} m, "
           f"flown {report['distance_flown_m']:.1f} m, airborne {report['airborne_time_s']:.1f} s")
     # logs: a readable navigation log and a standard tlog
@@ -205,8 +214,10 @@ def test_600_m_mission_time(start_sim, tmp_path, capsys, watchdog, goal):
     watchdog(45.0)
     cruise_m_s, climb_m_s, land_m_s = 10.0, 3.0, 0.7
     # 5x: the client steers on the wall clock (50 Hz polls and position fixes), so each step is 0.1 s of
-    # simulated time; the README demo measured ~1.15 at 5x and 10x
-    sim = start_sim(speedup=5.0)
+    # simulated time; the README demo measured ~1.15 at 5x and 10x. Stock link timeouts: at 5x the client's 1 Hz
+    # heartbeat and its setpoint stream stay inside them, and scaled ones (COM_OF_LOSS_T 5 s) would rightly make
+    # its last-command bound (the coast until the offboard-loss failsafe) five times as cautious: ratio ~1.39
+    sim = start_sim(speedup=5.0, scale_timeouts=False)
     lat, lon = goal
     code = mp.main(["--goal_lat", f"{lat:.9f}", "--goal_lon", f"{lon:.9f}", "--alt", f"{ALT_M:g}", "--safety",
                     f"{SAFETY_M:g}", "--connection", f"tcp:127.0.0.1:{sim.port}", "--timeout", "5", "--log-dir",
@@ -407,14 +418,16 @@ def test_a_second_and_third_mission_fly_on_the_same_running_sim(start_sim, tmp_p
     landed = report["landed"]
     assert distance_m(landed["lat_deg"], landed["lon_deg"], *to_latlon(*GOAL_SHORT)) < 1.0
     assert_down_and_disarmed(report)
+    assert_no_failsafe(report)
 
 
 def test_a_3_s_outage_mid_flight_is_ridden_out_and_the_mission_completes(start_sim, tmp_path, capsys, block_map,
                                                                          watchdog):
-    # at speed-up 1 the sim's clock is the wall clock, whichever its link faults run on; the ~130 m flight takes
-    # off ~4 s after the sim starts and lands ~25 s later: the link is dead from 12 s to 15 s
+    # the sim's faults run on its clock: at speed-up 2 the ~130 m flight arms at ~7.5 s of sim time and starts its
+    # landing at ~26 s; the link is dead from 12 s for 6 s of sim time, the 3 s of silence the client sees (and
+    # PX4's 1 s offboard-loss failsafe trips within it)
     watchdog(90.0)
-    sim = start_sim(map_path=block_map, speedup=1.0, faults=FaultConfig(outage_start_s=12.0, outage_duration_s=3.0))
+    sim = start_sim(map_path=block_map, speedup=2.0, faults=FaultConfig(outage_start_s=12.0, outage_duration_s=6.0))
     code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)
     report = sim.stop()
     out, err = capsys.readouterr()
@@ -429,10 +442,11 @@ def test_a_3_s_outage_mid_flight_is_ridden_out_and_the_mission_completes(start_s
 
 def test_200_ms_of_latency_flies_at_cruise_speed(start_sim, tmp_path, capsys, watchdog):
     # the follower leads by the measured round trip: 200 ms each way costs <= 1.3 x the no-latency airborne time
+    # (at speed-up 2 a sim whose faults run on the wall clock delays by 400 ms of its own time: harder still)
     watchdog(120.0)
     airborne = {}
     for latency_ms in (0.0, 200.0):
-        sim = start_sim(speedup=1.0, faults=FaultConfig(latency_ms=latency_ms))
+        sim = start_sim(speedup=2.0, faults=FaultConfig(latency_ms=latency_ms))
         assert fly(sim, tmp_path, "-q", goal=GOAL_SHORT) == mp.EXIT_OK, capsys.readouterr().err
         report = sim.stop()
         airborne[latency_ms] = report["airborne_time_s"]
@@ -464,9 +478,11 @@ def test_signing_on_both_ends(start_sim, tmp_path, capsys, watchdog):
     assert fly(sim, tmp_path, "--signing-key", "skyroute e2e signing", goal=GOAL_SHORT) == mp.EXIT_OK, \
         capsys.readouterr().err
     capsys.readouterr()
-    # without the key the client drops the sim's signed heartbeats: nobody answers
+    # without the key the client hears the sim's signed heartbeats, and the sim would drop its unsigned commands:
+    # the client says so at once instead of retrying an arm nobody answers
     assert fly(sim, tmp_path, "--timeout", "1", goal=(0.5, 0.5)) == mp.EXIT_BAD_INPUT
-    assert "no autopilot answered" in one_line(capsys.readouterr().err)
+    assert "signs its MAVLink messages and drops unsigned ones: give its key with --signing-key" in \
+        one_line(capsys.readouterr().err)
     report = sim.stop()
     assert len(report["landings"]) == 1 and not report["collisions"]
 

@@ -21,7 +21,8 @@ SAFETY_M = 5.0
 @pytest.mark.parametrize("planner", PLANNERS)
 def test_each_planner_flies_to_the_goal_without_collision(planner, tmp_path, capsys):
     goal = ned_to_geodetic(LocalNED(*GOAL_NE, 0.0), HOME)
-    config = SimConfig(map_path=ROOT / "colliders.csv", port=0, speedup=20, strict=True, origin="boot")
+    config = SimConfig(map_path=ROOT / "colliders.csv", port=0, speedup=20, strict=True, origin="boot",
+                       scale_timeouts=True)  # as PX4 SITL scales its link timeouts by its speed factor
     with Simulator(config) as sim:
         code = main([
             "--connection", f"tcp:127.0.0.1:{sim.port}", "--planner", planner,

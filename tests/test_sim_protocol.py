@@ -81,6 +81,21 @@ def test_parameter_names_defaults_and_types_are_the_real_ones(sim_start, sim_con
     assert not any("NOT_A_PARAM" in m.text for m in c.of_type("STATUSTEXT", since))
 
 
+@pytest.mark.parametrize("autopilot, capabilities", [("px4", 0xE8FF), ("ardupilot", 0xFBEF)])
+def test_autopilot_version_capabilities_are_the_measured_ones(sim_start, sim_connect, autopilot, capabilities):
+    # measured on PX4 1.15.4 and ArduCopter 4.7.0-dev SITL: only PX4 says PARAM_ENCODE_BYTEWISE, which is how a
+    # client knows to read its INT32 parameters' bits instead of their float value
+    sim = sim_start(autopilot=autopilot)
+    c = sim_connect(sim)
+    c.wait_for("HEARTBEAT")
+    since = c.mark()
+    assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION).result == M.MAV_RESULT_ACCEPTED
+    version = c.wait_for("AUTOPILOT_VERSION", since=since)
+    assert version.capabilities == capabilities
+    bytewise = bool(version.capabilities & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
+    assert bytewise == (autopilot == "px4")
+
+
 def test_px4_int32_param_set_is_bytewise_and_changes_behaviour(sim_start, sim_connect):
     sim = sim_start(strict=True, speedup=5.0)
     c = sim_connect(sim)

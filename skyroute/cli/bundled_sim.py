@@ -43,6 +43,8 @@ class BundledSim:
             self.port = probe.getsockname()[1]
         cmd = [sys.executable, "-m", "sim", "--map", str(self.map_path), "--port", str(self.port),
                "--speedup", f"{self.speedup:g}", "--strict", "--origin", "boot", "--report", str(self.report_path)]
+        if self.speedup != 1.0:  # as PX4 SITL's startup script does for PX4_SIM_SPEED_FACTOR: our 1 Hz heartbeat
+            cmd.append("--scale-timeouts")  # and setpoints are paced on the wall clock, its link timeouts on its own
         if self.start is not None:
             cmd += ["--start", f"{self.start.lat_deg:.8f},{self.start.lon_deg:.8f}"]
         log.info("starting the sim: %s", " ".join(cmd))

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -41,6 +40,8 @@ def make_log_dir(log_dir: str | Path) -> Path:
 
 def open_logs(log_dir: str | Path) -> tuple[Path, Path, logging.Handler]:
     """Create ``log_dir`` and a navigation log handler (flushed after every record) plus a tlog path."""
+    import time
+
     log_dir = make_log_dir(log_dir)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     nav_path, tlog_path = log_dir / f"navlog-{stamp}.txt", log_dir / f"flight-{stamp}.tlog"
@@ -111,7 +112,6 @@ def fly(
     def plan_from(start_north_m: float, start_east_m: float) -> np.ndarray:
         if obstacles is not None and obstacles.live.hits.any():  # from the air, after an outage: the live grid
             return obstacles.replan((start_north_m, start_east_m)).waypoints
-        started = time.monotonic()
         try:
             plan = make_plan(
                 setting, (start_north_m, start_east_m), goal_ne, planner,
@@ -120,9 +120,6 @@ def fly(
         except UserError as exc:
             raise PlanRefused(exc) from None
         log.info(plan_summary(plan))
-        if time.monotonic() - started > 2.0 and not plans:
-            say(f"planned in {time.monotonic() - started:.1f} s (the first run compiles the planner; later runs "
-                "reuse the compiled code)")
         plans.append(plan)
         return plan.waypoints
 
@@ -143,7 +140,7 @@ def fly(
                 connection, heartbeat_timeout_s=heartbeat_timeout_s, tlog_path=tlog_path,
                 target_system=target_system, signing_key=key,
             )
-        except vehicle_mod.BadConnection as exc:
+        except (vehicle_mod.BadConnection, vehicle_mod.SigningRequired) as exc:
             raise UserError(str(exc)) from None
         except vehicle_mod.VehicleError as exc:
             raise UserError(f"no autopilot answered on {connection}: {exc}") from None

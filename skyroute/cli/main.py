@@ -125,8 +125,8 @@ def run(
         raise UserError("give both --start_lat and --start_lon, or neither (start at the map's home)")
     check_numbers(goal_lat=goal_lat, goal_lon=goal_lon, start_lat=start_lat, start_lon=start_lon, alt=alt,
                   safety=safety, goal_alt=goal_alt, seed=seed, port=port, speedup=speedup, timeout=timeout,
-                  arm_timeout=arm_timeout, link_timeout=link_timeout, samples=samples,
-                  target_system=target_system, ground_amsl=ground_amsl)
+                  arm_timeout=arm_timeout, link_timeout=link_timeout, samples=samples, target_system=target_system,
+                  ground_amsl=ground_amsl)
     if goal_alt is not None and planner not in PLANNERS_3D:
         raise UserError(f"--goal_alt needs a 3D planner ({' or '.join(PLANNERS_3D)}), not {planner}")
     if plot and not Path(plot).resolve().parent.is_dir():
@@ -257,13 +257,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "extension: .plan (QGroundControl), .waypoints (MAVProxy/Mission Planner), .geojson, .kml; "
                         "repeatable")
     output.add_argument("-v", "--verbose", action="store_true", help="log everything (INFO) to stderr")
-    output.add_argument("-q", "--quiet", action="store_true", help="no progress lines while flying")
+    output.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress lines: neither the first run's 'compiling' notice nor the flight's")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = vars(build_parser().parse_args(argv))
-    announce_first_compile(not args.pop("quiet"))
+    announce_first_compile(not args["quiet"])
     logging.basicConfig(
         level=logging.INFO if args.pop("verbose") else logging.WARNING,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

@@ -21,6 +21,7 @@ from .errors import (
     CommandTimeout,
     ConnectionTimeout,
     LinkLost,
+    SigningRequired,
     TelemetryTimeout,
     UnsupportedMode,
     VehicleError,
@@ -58,8 +59,8 @@ from .transport import signing_key
 __all__ = [
     "STATUSTEXT_KEEP", "TYPE_MASK_POSITION_VELOCITY_YAW", "TYPE_MASK_POSITION_YAW", "Autopilot", "BadConnection",
     "CommandRejected", "CommandTimeout", "ConnectionTimeout", "FlightLimits", "LandedState", "LinkLost",
-    "MavlinkLink", "MavlinkVehicle", "ModeKind", "Readiness", "StatusText", "StatusTextAssembler", "Telemetry",
-    "TelemetryTimeout", "UnsupportedMode", "VehicleError", "autopilot_from_heartbeat", "command_name",
+    "MavlinkLink", "MavlinkVehicle", "ModeKind", "Readiness", "SigningRequired", "StatusText", "StatusTextAssembler",
+    "Telemetry", "TelemetryTimeout", "UnsupportedMode", "VehicleError", "autopilot_from_heartbeat", "command_name",
     "flight_limits", "flight_mode", "is_autopilot_heartbeat", "map_offset", "map_position", "mode_kind",
     "mode_numbers", "readiness", "refusal_reason", "result_name", "signing_key", "telemetry_from_attitude",
     "telemetry_from_extended_sys_state", "telemetry_from_global_position_int", "telemetry_from_gps_global_origin",

@@ -43,6 +43,17 @@ class ConnectionTimeout(VehicleError):
         super().__init__(f"{msg} ({detail})" if detail else msg)
 
 
+class SigningRequired(VehicleError):
+    """The autopilot signs its MAVLink 2 messages and we have no key: it will drop every unsigned command."""
+
+    permanent = True
+
+    def __init__(self, connection: str):
+        self.connection = connection
+        super().__init__(f"the autopilot on {connection} signs its MAVLink messages and drops unsigned ones: "
+                         "give its key with --signing-key")
+
+
 class CommandRejected(VehicleError):
     """The autopilot answered a command with a result other than ACCEPTED.
 

@@ -34,7 +34,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from . import limits as limits_mod
 from .commands import Commander
-from .errors import ConnectionTimeout, LinkLost, TelemetryTimeout, VehicleError
+from .errors import ConnectionTimeout, LinkLost, SigningRequired, TelemetryTimeout, VehicleError
 from .health import LinkHealth
 from .params import bytewise_encoding, decode_param_value, param_name
 from .sensors import SensorFeed
@@ -147,6 +147,7 @@ class MavlinkLink:
         self._telemetry = Telemetry()
         self._cond = threading.Condition()  # guards _telemetry, _target, _params
         self._target: tuple[int, int] | None = None
+        self._target_signs = False  # its heartbeat came signed (MAVLink 2 signing)
         self._others: set[int] = set()
         self._mav_type = mavlink.MAV_TYPE_QUADROTOR
         self._capabilities: int | None = None
@@ -197,6 +198,8 @@ class MavlinkLink:
                 raise ConnectionTimeout(self.connection, timeout_s, (which + seen).strip(": ") or "")
             sysid, compid = self._target
             t = self._telemetry
+            if self._target_signs and not self.transport.signing:
+                raise SigningRequired(self.connection)
         log.info("connected to %s autopilot system %d component %d on %s (mode %s)%s",
                  t.autopilot.value, sysid, compid, self.connection, t.mode,
                  ", signed" if self.transport.signing else "")
@@ -465,6 +468,7 @@ class MavlinkLink:
             self._others.add(src[0])
             return False
         self._target, self._mav_type = src, msg.type
+        self._target_signs = bool(msg.get_header().incompat_flags & mavlink.MAVLINK_IFLAG_SIGNED)
         return True
 
     def _handle(self, msg) -> None:

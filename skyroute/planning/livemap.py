@@ -195,7 +195,25 @@ class LiveMap:
         d = np.repeat(dist, len(_SAMPLES))
         ok = (sector >= 0) & (d <= range_m)
         np.minimum.at(out, sector[ok], d[ok])
+        # A building that only grazes a sector (its corner inside the wedge, no sample point of it there) meets
+        # one of the sector's edges: the range along both edge rays bounds the sector's minimum from above.
+        for edge in (-half_width, half_width):
+            np.minimum(out, self._ray_ranges(p, window, centres + edge, range_m), out=out)
         return out
+
+    def _ray_ranges(self, p: np.ndarray, window, bearings: np.ndarray, range_m: float) -> np.ndarray:
+        """Distance along each bearing from ``p`` to the first footprint cell inside ``window`` (marched at a
+        quarter metre; inf when none within ``range_m``)."""
+        i0, i1, j0, j1 = window
+        steps = np.arange(0.0, range_m + 1e-9, 0.25)
+        pts_n = p[0] + np.cos(bearings)[:, None] * steps[None, :]
+        pts_e = p[1] + np.sin(bearings)[:, None] * steps[None, :]
+        ci = np.floor(pts_n - self.north_offset).astype(np.int64)
+        cj = np.floor(pts_e - self.east_offset).astype(np.int64)
+        on = (ci >= i0) & (ci < i1) & (cj >= j0) & (cj < j1)
+        hit = on & self.footprint[np.where(on, ci, i0), np.where(on, cj, j0)]
+        first = hit.argmax(axis=1)
+        return np.where(hit.any(axis=1), steps[first], np.inf)
 
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
                  max_range_m: float) -> ScanUpdate:

@@ -558,6 +558,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         ff_mps, ff_at = 0.0, self.clock()
         trim_at, self._trim_m = ff_at, np.zeros(2)
         self._near_goal_since = math.nan
+        sent_at = -math.inf
         while True:
             p = self._map_position()
             self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), self._progress_s)
@@ -572,6 +573,10 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             if self.clock() > deadline:
                 raise _Abort(self._not_reached(i, waypoints[i], i == last, deadline - start_s))
             self._sense(p, waypoints, i)
+            if self.clock() - sent_at < 0.9 * self.poll_s:  # woken early by a reading: checked, nothing to send
+                self._tick(wake_on_sensor=True)
+                continue
+            sent_at = self.clock()
             t = self.vehicle.telemetry
             velocity = (t.local_v_north_mps, t.local_v_east_mps, -t.local_v_down_mps)
             rate = self._autopilot_rate()

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
@@ -90,3 +90,31 @@ def test_braking_decides_whether_to_turn_without_stopping():
     assert can_turn_in_time(far, 10.0, 3.0, 5.0) and not can_turn_in_time(near, 10.0, 3.0, 5.0)
     assert can_turn_in_time(near, 2.0, 3.0, 5.0) and can_turn_in_time(None, 20.0, 1.0, 5.0)
     assert not can_turn_in_time(Blockage("blocked", 2.0, (0.0, 0.0)), 1.0, 3.0, 5.0)
+
+
+def test_a_scan_is_placed_where_it_arrived_not_where_the_mission_reads_it():
+    @dataclass
+    class Scan:
+        local_ne: tuple | None
+        bearings_rad: np.ndarray = field(default_factory=lambda: np.zeros(1))
+        half_width_rad: float = 0.1
+        distances_m: np.ndarray = field(default_factory=lambda: np.array([5.0]))
+        max_range_m: float = 30.0
+        received_s: float = 0.0
+
+    class Map:
+        def __init__(self):
+            self.at = []
+
+        def add_scan(self, north_m, east_m, *rest):
+            self.at.append((north_m, east_m))
+
+    class Vehicle:
+        sensing = True
+
+        def sensor_readings(self):
+            return [Scan((10.0, 20.0)), Scan(None)]
+
+    obstacles = Map()
+    Sensing(Vehicle(), obstacles, lambda: 0.0).drain((55.0, 66.0), offset_ne=(100.0, -50.0))
+    assert obstacles.at == [(110.0, -30.0), (55.0, 66.0)]

@@ -135,8 +135,12 @@ class Sensing:
         """Replanning is on and the autopilot streams obstacle data."""
         return self.obstacles is not None and bool(getattr(self.vehicle, "sensing", False))
 
-    def drain(self, position_ne: Sequence[float]) -> bool:
-        """Feed every reading queued since the last call to the map at ``position_ne``; True if there were any."""
+    def drain(self, position_ne: Sequence[float], offset_ne: Sequence[float] | None = None) -> bool:
+        """Feed every reading queued since the last call to the map; True if there were any.
+
+        A reading stamped with the local position it arrived at (``local_ne``, the autopilot's frame) is placed
+        there, moved into the map frame by ``offset_ne`` (map minus local, north and east m); others (or all,
+        without an offset) at ``position_ne``, the vehicle's map position now."""
         readings = getattr(self.vehicle, "sensor_readings", None)
         if readings is None:
             return False
@@ -144,9 +148,12 @@ class Sensing:
         if not got or self.obstacles is None:
             return bool(got)
         n, e = float(position_ne[0]), float(position_ne[1])
+        offset = None if offset_ne is None else (float(offset_ne[0]), float(offset_ne[1]))
         for r in got:
             if hasattr(r, "bearings_rad"):
-                self.obstacles.add_scan(n, e, r.bearings_rad, r.half_width_rad, r.distances_m, r.max_range_m)
+                at = getattr(r, "local_ne", None)
+                sn, se = (n, e) if at is None or offset is None else (at[0] + offset[0], at[1] + offset[1])
+                self.obstacles.add_scan(sn, se, r.bearings_rad, r.half_width_rad, r.distances_m, r.max_range_m)
                 self.scans += 1
                 received = float(getattr(r, "received_s", math.nan))
                 if math.isfinite(received) and not received >= self._oldest_s:
@@ -155,13 +162,15 @@ class Sensing:
                 self.heights += 1
         return True
 
-    def step(self, position_ne: Sequence[float], waypoints_ne: np.ndarray) -> Blockage | None:
-        """Drain the readings and check the path ``position -> waypoints_ne``; the blockage, or None."""
+    def step(self, position_ne: Sequence[float], waypoints_ne: np.ndarray,
+             offset_ne: Sequence[float] | None = None) -> Blockage | None:
+        """Drain the readings (see :meth:`drain`) and check the path ``position -> waypoints_ne``; the blockage,
+        or None."""
         if not self.active:
             self.drain(position_ne)
             self._oldest_s = math.nan
             return None
-        fresh = self.drain(position_ne)
+        fresh = self.drain(position_ne, offset_ne)
         if not fresh:
             return None
         blockage = self.obstacles.check(position_ne, waypoints_ne)
@@ -212,9 +221,13 @@ class ReplanningMixin:
         out[:, 3] = out[:, 4] = 0.5
         return out
 
+    def _offset_ne(self) -> tuple[float, float]:
+        """Map minus the autopilot's local frame, north and east m (the mission's datum)."""
+        return self._offset.north_m, self._offset.east_m
+
     def _sense(self, p, waypoints: np.ndarray, i: int) -> None:
         """Feed the readings and check the rest of the path (from the vehicle through waypoints ``i:``)."""
-        blockage = self.sensing.step((p.north_m, p.east_m), waypoints[i:, :2])
+        blockage = self.sensing.step((p.north_m, p.east_m), waypoints[i:, :2], self._offset_ne())
         if blockage is not None:
             raise _Blocked(blockage)
 
@@ -233,7 +246,7 @@ class ReplanningMixin:
             self._brake()
         p = self._map_position()
         here = (p.north_m, p.east_m)
-        self.sensing.drain(here)
+        self.sensing.drain(here, self._offset_ne())
         target = self._target_ne
         try:
             route = (self.sensing.obstacles.replan(here) if target is None

@@ -501,7 +501,8 @@ class MavlinkLink:
                     level = logging.WARNING if entry.severity <= mavlink.MAV_SEVERITY_ERROR else logging.INFO
                     log.log(level, "autopilot says: %s", entry.text)
             elif mtype in SensorFeed.MESSAGES:
-                self.sensors.handle(msg, now, self._telemetry.heading_rad)
+                t = self._telemetry
+                self.sensors.handle(msg, now, t.heading_rad, (t.north_m, t.east_m))
             else:
                 self._telemetry = update_telemetry(self._telemetry, msg, now)
             self._cond.notify_all()

@@ -24,6 +24,7 @@ at translation time (the latest ATTITUDE). Distances in metres, ``inf`` = nothin
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -49,7 +50,9 @@ class RangeScan:
     ``bearings_rad`` (K,) each sector's centre (clockwise from north), ``half_width_rad`` the sectors' half width,
     ``distances_m`` (K,) to the nearest obstacle in the sector (``inf`` none within ``max_range_m``, ``NaN``
     unknown), ``min_range_m`` / ``max_range_m`` the sensor's limits, ``time_s`` the autopilot's time since boot of
-    the sample, ``received_s`` our monotonic clock when it arrived, ``source`` the message name.
+    the sample, ``received_s`` our monotonic clock when it arrived, ``source`` the message name, ``local_ne`` the
+    vehicle's latest local position (autopilot's NED frame, north and east m) when it arrived (None: not known):
+    the scan is placed there, not where the vehicle is when the mission gets round to it (a poll later).
     """
 
     bearings_rad: np.ndarray
@@ -60,6 +63,7 @@ class RangeScan:
     time_s: float
     received_s: float
     source: str
+    local_ne: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -162,13 +166,17 @@ class SensorFeed:
         self.last_scan_s = math.nan
         self.height: HeightReading | None = None
 
-    def handle(self, msg, received_s: float, heading_rad: float) -> bool:
-        """Translate and queue ``msg`` if it is a sensor message; True if it was one."""
+    def handle(self, msg, received_s: float, heading_rad: float,
+               local_ne: tuple[float, float] | None = None) -> bool:
+        """Translate and queue ``msg`` if it is a sensor message (``local_ne``: the vehicle's local north, east m
+        at arrival, stamped on horizontal scans); True if it was one."""
         if msg.get_type() not in self.MESSAGES:
             return False
         reading = translate_sensor(msg, received_s, heading_rad)
         if reading is None:
             return True
+        if isinstance(reading, RangeScan) and local_ne is not None and all(map(math.isfinite, local_ne)):
+            reading = dataclasses.replace(reading, local_ne=(float(local_ne[0]), float(local_ne[1])))
         with self._cond:
             if isinstance(reading, HeightReading):
                 self.height = reading

@@ -146,3 +146,32 @@ def test_a_wall_seen_late_at_speed_makes_the_vehicle_brake_before_it_turns():
                        start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
     result = _mission(v, clock, _obstacles(), calls=[]).run()
     assert result.completed and any(r.braked for r in result.replans)
+
+
+@pytest.mark.parametrize("method", ["grid", "any-angle"])
+def test_each_replanning_method_flies_round_the_wall_with_free_legs(method):
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    obstacles = Replanner(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT, method=method)
+    result = _mission(v, clock, obstacles, calls=[]).run()
+    assert result.completed and result.replans
+    assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
+    assert result.landing_error_m < 0.5
+    if method == "any-angle":  # pulled taut: no waypoint on a straight run of the grid route is left
+        assert len(result.replans[-1].waypoints) <= len(
+            Replanner(obstacles.live, GOAL, ALT).replan(result.replans[-1].waypoints[0, :2]).waypoints)
+
+
+def test_the_command_lines_obstacle_map_serves_every_planner():
+    import motion_planning as mp
+    from skyroute.cli.flying import obstacle_map
+    from skyroute.cli.setting import load_setting
+    from skyroute.planning import PLANNERS
+
+    setting = load_setting(mp.DEFAULT_MAP, 5.0, 5.0)
+    for planner in PLANNERS:
+        replanner = obstacle_map(setting, (129.5, -57.5), planner)
+        assert replanner.method == ("any-angle" if planner == "any-angle" else "grid")
+        route = replanner.replan((0.5, 0.5))  # nothing observed yet: the map's own route
+        assert np.allclose(route.waypoints[-1, :2], (129.5, -57.5))

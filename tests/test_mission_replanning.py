@@ -146,6 +146,8 @@ def test_a_wall_seen_late_at_speed_makes_the_vehicle_brake_before_it_turns():
                        start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
     result = _mission(v, clock, _obstacles(), calls=[]).run()
     assert result.completed and any(r.braked for r in result.replans)
+    # every replan's latency is known: reading in -> the brake's first setpoint, or the new route's
+    assert all(math.isfinite(r.latency_ms) and r.latency_ms >= 0 for r in result.replans)
 
 
 @pytest.mark.parametrize("method", ["grid", "any-angle"])

@@ -9,7 +9,8 @@ the path; the mission turns a blockage into PATH_BLOCKED -> REPLANNING -> WAYPOI
 hold first when the vehicle could not stop short of the obstacle (:func:`can_turn_in_time`).
 
 Latency: a :class:`ReplanRecord`'s ``latency_ms`` runs from the arrival of the oldest reading of the poll that
-found the blockage (our monotonic clock, stamped by the link's reader) to the first setpoint of the new path.
+found the blockage (our monotonic clock, stamped by the link's reader) to the first setpoint of the new path, or
+to the first brake setpoint when the vehicle brakes first.
 """
 
 from __future__ import annotations
@@ -182,6 +183,11 @@ class Sensing:
         """Milliseconds since the oldest reading behind the current blockage arrived (NaN if unknown)."""
         return (self.clock() - self._oldest_s) * 1e3 if math.isfinite(self._oldest_s) else math.nan
 
+    @property
+    def blocking_reading_s(self) -> float:
+        """When (our clock) the oldest reading behind the current blockage arrived (NaN if unknown)."""
+        return self._oldest_s
+
     def record(self, entry: ReplanRecord) -> None:
         self.records.append(entry)
         self._oldest_s = math.nan
@@ -209,6 +215,8 @@ class ReplanningMixin:
     _target_ne: tuple[float, float] | None = None
     _unreachable: str | None = None
     _pending: ReplanRecord | None = None
+    _reading_s: float = math.nan  # arrival of the reading behind the blockage being handled
+    _first_setpoint_ms: float = math.nan  # reading -> first new setpoint (the brake's, when braking)
 
     @property
     def discovered_obstacles(self) -> np.ndarray:
@@ -237,6 +245,7 @@ class ReplanningMixin:
         from .states import MissionEvent as E
 
         self._fire(E.PATH_BLOCKED)
+        self._reading_s, self._first_setpoint_ms = self.sensing.blocking_reading_s, math.nan
         if len(self.sensing.records) >= self.max_replans:
             raise _abort(f"{self.max_replans} replans and still blocked")
         t = self.vehicle.telemetry
@@ -280,6 +289,8 @@ class ReplanningMixin:
         deadline = self.clock() + 10.0
         while self.clock() < deadline:
             self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading, velocity_ned=None)
+            if not math.isfinite(self._first_setpoint_ms):
+                self._first_setpoint_ms = (self.clock() - self._reading_s) * 1e3
             t = self.vehicle.telemetry
             if math.hypot(t.local_v_north_mps, t.local_v_east_mps) <= 2.0 * self.stop_speed_mps:
                 return
@@ -318,7 +329,9 @@ class ReplanningMixin:
         if self._pending is not None:
             rec = self._pending
             self._pending = None
-            latency = self.sensing.latency_ms()
+            latency = self._first_setpoint_ms
+            if not math.isfinite(latency):
+                latency = (self.clock() - self._reading_s) * 1e3
             self.sensing.record(ReplanRecord(rec.time_s, rec.north_m, rec.east_m, rec.reason, rec.along_m,
                                              rec.plan_ms, latency, rec.braked, rec.waypoints, rec.outcome))
 

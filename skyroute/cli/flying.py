@@ -196,6 +196,10 @@ def fly(
             logger_or_handler.setLevel(level)
 
 
+#: How far below the flight altitude a roof still explains the sensor's readings (m).
+FOOTPRINT_BELOW_M = 1.0
+
+
 def obstacle_map(setting: Setting, goal_ne: Sequence[float], planner: str):
     """The live occupancy layer over the flight's planning grid and its replanner (``skyroute.planning``): the
     map's footprint explains the sensor's readings of its own buildings; a fallback point must be landable (clear
@@ -206,7 +210,9 @@ def obstacle_map(setting: Setting, goal_ne: Sequence[float], planner: str):
     from skyroute.planning.replan import Replanner
 
     gm = setting.grid_map
-    footprint = create_grid(setting.city.obstacles, setting.altitude_m, 0.0)[0]
+    # Roofs up to a metre below the altitude count too: the vehicle flies that much low at times, and its sensor
+    # then sees them (a roof it cannot see only reads farther, which the layer never takes for an obstacle).
+    footprint = create_grid(setting.city.obstacles, max(setting.altitude_m - FOOTPRINT_BELOW_M, 0.0), 0.0)[0]
     landable = ~create_grid(setting.city.obstacles, 0.0, setting.safety_m)[0]
     live = LiveMap.for_grid_map(gm, footprint)
     method = "any-angle" if planner == "any-angle" else "grid"

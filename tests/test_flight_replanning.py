@@ -96,6 +96,7 @@ def test_a_scan_is_placed_where_it_arrived_not_where_the_mission_reads_it():
     @dataclass
     class Scan:
         local_ne: tuple | None
+        local_down_m: float | None = None
         bearings_rad: np.ndarray = field(default_factory=lambda: np.zeros(1))
         half_width_rad: float = 0.1
         distances_m: np.ndarray = field(default_factory=lambda: np.array([5.0]))
@@ -118,3 +119,31 @@ def test_a_scan_is_placed_where_it_arrived_not_where_the_mission_reads_it():
     obstacles = Map()
     Sensing(Vehicle(), obstacles, lambda: 0.0).drain((55.0, 66.0), offset_ne=(100.0, -50.0))
     assert obstacles.at == [(110.0, -30.0), (55.0, 66.0)]
+
+
+def test_scans_from_below_the_flight_altitude_are_dropped():
+    @dataclass
+    class Scan:
+        local_down_m: float
+        local_ne: tuple = (0.0, 0.0)
+        bearings_rad: np.ndarray = field(default_factory=lambda: np.zeros(1))
+        half_width_rad: float = 0.1
+        distances_m: np.ndarray = field(default_factory=lambda: np.array([5.0]))
+        max_range_m: float = 30.0
+        received_s: float = 0.0
+
+    class Map:
+        at: list = []
+
+        def add_scan(self, north_m, east_m, *rest):
+            self.at.append((north_m, east_m))
+
+    class Vehicle:
+        sensing = True
+
+        def sensor_readings(self):  # climbing through 2 m, at 4.5 m, at 5.2 m (local down, map = local - 1 m)
+            return [Scan(-1.0), Scan(-3.5), Scan(-4.2)]
+
+    sensing = Sensing(Vehicle(), Map(), lambda: 0.0)
+    sensing.drain((0.0, 0.0), (0.0, 0.0), offset_down_m=-1.0, min_altitude_m=4.0)
+    assert len(Map.at) == 2 and sensing.low_scans == 1

@@ -95,7 +95,8 @@ def test_feed_queues_readings_counts_scans_and_says_when_streaming():
 
 def test_feed_stamps_scans_with_the_local_position_they_arrived_at():
     feed = SensorFeed()
-    feed.handle(_obstacle_distance([1000] * 72), 1.0, 0.0, (12.5, -3.0))
+    feed.handle(_obstacle_distance([1000] * 72), 1.0, 0.0, (12.5, -3.0), -4.5)
     feed.handle(_obstacle_distance([1000] * 72), 1.1, 0.0, (math.nan, math.nan))  # no position yet
     first, second = feed.drain()
-    assert first.local_ne == (12.5, -3.0) and second.local_ne is None
+    assert first.local_ne == (12.5, -3.0) and first.local_down_m == -4.5
+    assert second.local_ne is None and second.local_down_m is None

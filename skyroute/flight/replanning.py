@@ -128,6 +128,7 @@ class Sensing:
     clock: Callable[[], float]
     scans: int = 0
     heights: int = 0
+    low_scans: int = 0
     records: list[ReplanRecord] = field(default_factory=list)
     _oldest_s: float = math.nan
 
@@ -136,12 +137,15 @@ class Sensing:
         """Replanning is on and the autopilot streams obstacle data."""
         return self.obstacles is not None and bool(getattr(self.vehicle, "sensing", False))
 
-    def drain(self, position_ne: Sequence[float], offset_ne: Sequence[float] | None = None) -> bool:
+    def drain(self, position_ne: Sequence[float], offset_ne: Sequence[float] | None = None, *,
+              offset_down_m: float | None = None, min_altitude_m: float | None = None) -> bool:
         """Feed every reading queued since the last call to the map; True if there were any.
 
         A reading stamped with the local position it arrived at (``local_ne``, the autopilot's frame) is placed
         there, moved into the map frame by ``offset_ne`` (map minus local, north and east m); others (or all,
-        without an offset) at ``position_ne``, the vehicle's map position now."""
+        without an offset) at ``position_ne``, the vehicle's map position now. One stamped with its down
+        coordinate (``local_down_m``) from below ``min_altitude_m`` (map altitude, with ``offset_down_m`` map
+        minus local down) is dropped: climbing or sinking, the sensor sees roofs the layer's footprint leaves out."""
         readings = getattr(self.vehicle, "sensor_readings", None)
         if readings is None:
             return False
@@ -152,6 +156,11 @@ class Sensing:
         offset = None if offset_ne is None else (float(offset_ne[0]), float(offset_ne[1]))
         for r in got:
             if hasattr(r, "bearings_rad"):
+                down = getattr(r, "local_down_m", None)
+                if down is not None and offset_down_m is not None and min_altitude_m is not None \
+                        and -(down + offset_down_m) < min_altitude_m:
+                    self.low_scans += 1
+                    continue
                 at = getattr(r, "local_ne", None)
                 sn, se = (n, e) if at is None or offset is None else (at[0] + offset[0], at[1] + offset[1])
                 self.obstacles.add_scan(sn, se, r.bearings_rad, r.half_width_rad, r.distances_m, r.max_range_m)
@@ -164,14 +173,14 @@ class Sensing:
         return True
 
     def step(self, position_ne: Sequence[float], waypoints_ne: np.ndarray,
-             offset_ne: Sequence[float] | None = None) -> Blockage | None:
+             offset_ne: Sequence[float] | None = None, **below) -> Blockage | None:
         """Drain the readings (see :meth:`drain`) and check the path ``position -> waypoints_ne``; the blockage,
         or None."""
         if not self.active:
             self.drain(position_ne)
             self._oldest_s = math.nan
             return None
-        fresh = self.drain(position_ne, offset_ne)
+        fresh = self.drain(position_ne, offset_ne, **below)
         if not fresh:
             return None
         blockage = self.obstacles.check(position_ne, waypoints_ne)
@@ -233,9 +242,13 @@ class ReplanningMixin:
         """Map minus the autopilot's local frame, north and east m (the mission's datum)."""
         return self._offset.north_m, self._offset.east_m
 
+    def _low(self) -> dict:
+        """Which scans are too low for the layer: from below the flight altitude less the altitude tolerance."""
+        return {"offset_down_m": self._offset.down_m, "min_altitude_m": self.altitude_m - self.altitude_tolerance_m}
+
     def _sense(self, p, waypoints: np.ndarray, i: int) -> None:
         """Feed the readings and check the rest of the path (from the vehicle through waypoints ``i:``)."""
-        blockage = self.sensing.step((p.north_m, p.east_m), waypoints[i:, :2], self._offset_ne())
+        blockage = self.sensing.step((p.north_m, p.east_m), waypoints[i:, :2], self._offset_ne(), **self._low())
         if blockage is not None:
             raise _Blocked(blockage)
 
@@ -255,7 +268,7 @@ class ReplanningMixin:
             self._brake()
         p = self._map_position()
         here = (p.north_m, p.east_m)
-        self.sensing.drain(here, self._offset_ne())
+        self.sensing.drain(here, self._offset_ne(), **self._low())
         target = self._target_ne
         try:
             route = (self.sensing.obstacles.replan(here) if target is None

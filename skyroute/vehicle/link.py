@@ -502,7 +502,7 @@ class MavlinkLink:
                     log.log(level, "autopilot says: %s", entry.text)
             elif mtype in SensorFeed.MESSAGES:
                 t = self._telemetry
-                self.sensors.handle(msg, now, t.heading_rad, (t.north_m, t.east_m))
+                self.sensors.handle(msg, now, t.heading_rad, (t.north_m, t.east_m), t.down_m)
             else:
                 self._telemetry = update_telemetry(self._telemetry, msg, now)
             self._cond.notify_all()

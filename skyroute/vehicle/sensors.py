@@ -51,8 +51,9 @@ class RangeScan:
     ``distances_m`` (K,) to the nearest obstacle in the sector (``inf`` none within ``max_range_m``, ``NaN``
     unknown), ``min_range_m`` / ``max_range_m`` the sensor's limits, ``time_s`` the autopilot's time since boot of
     the sample, ``received_s`` our monotonic clock when it arrived, ``source`` the message name, ``local_ne`` the
-    vehicle's latest local position (autopilot's NED frame, north and east m) when it arrived (None: not known):
-    the scan is placed there, not where the vehicle is when the mission gets round to it (a poll later).
+    vehicle's latest local position (autopilot's NED frame, north and east m) when it arrived and ``local_down_m``
+    its down coordinate (None: not known): the scan is placed there, not where the vehicle is when the mission gets
+    round to it (a poll later), and a scan taken low (climbing, landing) can be told apart.
     """
 
     bearings_rad: np.ndarray
@@ -64,6 +65,7 @@ class RangeScan:
     received_s: float
     source: str
     local_ne: tuple[float, float] | None = None
+    local_down_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -167,16 +169,18 @@ class SensorFeed:
         self.height: HeightReading | None = None
 
     def handle(self, msg, received_s: float, heading_rad: float,
-               local_ne: tuple[float, float] | None = None) -> bool:
-        """Translate and queue ``msg`` if it is a sensor message (``local_ne``: the vehicle's local north, east m
-        at arrival, stamped on horizontal scans); True if it was one."""
+               local_ne: tuple[float, float] | None = None, local_down_m: float | None = None) -> bool:
+        """Translate and queue ``msg`` if it is a sensor message (``local_ne``, ``local_down_m``: the vehicle's
+        local position at arrival, m, stamped on horizontal scans); True if it was one."""
         if msg.get_type() not in self.MESSAGES:
             return False
         reading = translate_sensor(msg, received_s, heading_rad)
         if reading is None:
             return True
         if isinstance(reading, RangeScan) and local_ne is not None and all(map(math.isfinite, local_ne)):
-            reading = dataclasses.replace(reading, local_ne=(float(local_ne[0]), float(local_ne[1])))
+            down = float(local_down_m) if local_down_m is not None and math.isfinite(local_down_m) else None
+            reading = dataclasses.replace(reading, local_ne=(float(local_ne[0]), float(local_ne[1])),
+                                          local_down_m=down)
         with self._cond:
             if isinstance(reading, HeightReading):
                 self.height = reading

@@ -104,6 +104,7 @@ def test_a_wall_across_the_route_is_sensed_and_flown_round_to_the_goal(start_sim
     assert _landed_from_goal_m(report, GOAL_NEAR) <= 1.0
     log = _navlog(tmp_path)
     assert "PATH_BLOCKED" in log and "REPLANNED" in log and "replan: path" in log
+    assert "observed obstacle cells within" in log  # the flight's sensing summary names where they were
     assert "replans" in [line for line in out.splitlines() if line.startswith("mission complete:")][0]
     assert plot.stat().st_size > 0
     print(f"\n{autopilot}: landed {_landed_from_goal_m(report, GOAL_NEAR):.2f} m from the goal, clearance "

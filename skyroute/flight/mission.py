@@ -329,6 +329,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
     def _finish(self, error: MissionError | None = None) -> MissionResult:
         r = self.result
         r.replans = list(self.sensing.records)
+        self.sensing.log_summary()
         r.track = np.array(self._track, float).reshape(-1, 4)
         if len(r.track):
             r.flown_length_m = path_length_m(r.track[:, 1:])

@@ -202,6 +202,18 @@ class Sensing:
         self._oldest_s = math.nan
         log.info("replan: %s", entry.describe())
 
+    def log_summary(self) -> None:
+        """One log line at the end of a flight: scans taken, dropped as too low, obstacle cells found, replans."""
+        if self.obstacles is None and not self.scans:
+            return
+        cells = self.discovered_ne()
+        where = ""
+        if len(cells):
+            lo, hi = cells.min(axis=0), cells.max(axis=0)
+            where = f" within ({lo[0]:.0f}..{hi[0]:.0f} N, {lo[1]:.0f}..{hi[1]:.0f} E)"
+        log.info("sensing: %d scans (%d from below the altitude, dropped), %d observed obstacle cells%s, %d replans",
+                 self.scans, self.low_scans, len(cells), where, len(self.records))
+
     def discovered_ne(self) -> np.ndarray:
         """Map ``(north_m, east_m)`` of the observed obstacle cells, ``(K, 2)``."""
         if self.obstacles is None:

@@ -6,6 +6,8 @@ and a fresh client process: once with no fault (the baseline) and once with the 
 - ``loss10``: 10 % packet loss each way
 - ``latency200``: 200 ms latency each way
 - ``outage3``: a 3 s outage mid-flight (the socket stays open; everything is dropped)
+
+(latencies and the outage in wall-clock time, as the client meets them: the sim gets them times its speed-up)
 - ``loss5_latency100_wind``: 5 % loss, 100 ms latency, 4 m/s wind with 1 m/s gusts
 
 The sim's report is the truth: completion (exit 0 and landed), landing error (sim touchdown to the goal, with a
@@ -80,12 +82,13 @@ def pick_missions(map_path: Path, count: int, seed: int) -> list[dict]:
     rng = np.random.default_rng(seed)
     grid = setting.grid_map
     n, m = grid.grid.shape
-    ground = setting.landing_grid
     out: list[dict] = []
     while len(out) < count:
         (i0, j0), (i1, j1) = rng.integers(0, (n, m), size=(2, 2))
-        if grid.grid[i0, j0] or grid.grid[i1, j1] or ground[i0, j0] or ground[i1, j1]:
-            continue  # starts and goals in a street, clear of every building's margin
+        if grid.grid[i0, j0] or grid.grid[i1, j1]:
+            continue
+        if setting.landing_point((i0, j0))[1] or setting.landing_point((i1, j1))[1]:
+            continue  # starts and goals in a street, clear of every building's margin, however low
         start, goal = grid.centre_of((i0, j0)), grid.centre_of((i1, j1))
         if not 150.0 <= math.dist(start, goal) <= 800.0:
             continue
@@ -120,12 +123,21 @@ def fly_once(mission: dict, mix: str, *, map_path: Path, speedup: float, seed: i
              simulated_faults: bool) -> dict:
     port = free_port()
     report_path = workdir / "report.json"
+    # The mixes are what a real link does in real time. A sim whose faults run on its own clock at speed-up N
+    # must delay by N x 200 ms and stay silent N x 3 s of its time for the client (on the wall clock) to meet
+    # 200 ms and 3 s; its link-loss timeouts are scaled by N too (--scale-timeouts), as PX4 SITL's are.
+    scale = speedup if simulated_faults else 1.0
     faults = list(MIXES.get(mix, []))
+    for k, arg in enumerate(faults[:-1]):
+        if arg == "--latency":
+            faults[k + 1] = f"{float(faults[k + 1]) * scale:g}"
     if mix == "outage3":
         # mid-flight: after the boot, the readiness wait and the takeoff (~15 s simulated), 40 % into the legs
         flight_s = 15.0 + 0.4 * mission["planned_m"] / 7.0
         start_s = flight_s if simulated_faults else flight_s / speedup + 1.5
-        faults += ["--outage", f"{start_s:.1f},{3.0 if simulated_faults else 3.0:g}"]
+        faults += ["--outage", f"{start_s:.1f},{3.0 * scale:g}"]
+    if simulated_faults:
+        faults.append("--scale-timeouts")
     lat, lon = mission["start"]
     sim_cmd = [sys.executable, "-m", "sim", "--map", str(map_path), "--port", str(port), "--strict", "--speedup",
                f"{speedup:g}", "--start", f"{lat:.8f},{lon:.8f}", "--report", str(report_path), "--seed",

@@ -79,9 +79,9 @@ PRESETS: dict[str, BootTimeline] = {
                          armable_s=2.0),
     "arducopter": BootTimeline(gps_fix_s=10.1, origin_s=19.9, home_s=19.9, local_position_s=41.5,
                                global_position_s=10.1, armable_s=41.5),
-    "px4": BootTimeline(heartbeat_s=1.4, gps_fix_s=0.4, origin_s=1.4, home_s=2.4, local_position_s=0.4,
+    "px4": BootTimeline(heartbeat_s=1.4, gps_fix_s=0.4, origin_s=1.4, home_s=1.4, local_position_s=0.4,
                         global_position_s=35.0, armable_s=36.6),
-    "px4-fast-align": BootTimeline(heartbeat_s=1.4, gps_fix_s=0.4, origin_s=1.4, home_s=2.4, local_position_s=0.4,
+    "px4-fast-align": BootTimeline(heartbeat_s=1.4, gps_fix_s=0.4, origin_s=1.4, home_s=1.4, local_position_s=0.4,
                                    global_position_s=2.5, armable_s=4.4),
 }
 

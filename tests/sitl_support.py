@@ -359,4 +359,39 @@ class Monitor:
         ``ignore`` ones (row numbers, e.g. the roof it took off from)."""
         points = np.array([(s.north_m, s.east_m, s.up_m) for s in self.track(since_s) if s.up_m > above_m])
         boxes = np.delete(self.boxes, list(ignore), axis=0)
-        return float(distance_to_boxes_m(points, boxes).min()) if len(points) else math.inf
+        if not len(points):
+            return math.inf
+        distances = distance_to_boxes_m(points, boxes)
+        k = int(distances.argmin())
+        print(f"closest approach {distances[k]:.2f} m at N {points[k, 0]:.1f} E {points[k, 1]:.1f} "
+              f"up {points[k, 2]:.1f} m (sample {k + 1} of {len(points)})")
+        return float(distances[k])
+
+
+# ------------------------------------------------------------------------------------------- held-out goals
+def held_out_goal(map_path: Path, seed: int, *, min_m: float = 80.0, max_m: float = 180.0, safety_m: float = 5.0,
+                  altitude_m: float = 5.0) -> tuple[float, float]:
+    """A goal (north_m, east_m) no other test uses: a seeded random cell centre ``min_m``..``max_m`` from home,
+    where the vehicle may descend (at least ``safety_m`` from every box at ground level, by this module's own
+    distance) and that the client's planner can reach from home. Deterministic for a seed."""
+    from skyroute.cli.exits import UserError
+    from skyroute.cli.setting import check_endpoint, load_setting, make_plan
+
+    setting = load_setting(map_path, altitude_m, safety_m)
+    _, _, boxes = read_boxes(map_path)
+    grid = setting.grid_map
+    rng = np.random.default_rng(seed)
+    for _ in range(10_000):
+        cell = tuple(int(v) for v in rng.integers(0, grid.grid.shape))
+        north, east = grid.centre_of(cell)
+        if grid.grid[cell] or not min_m <= math.hypot(north, east) <= max_m:
+            continue
+        if distance_to_boxes_m(np.array([[north, east, 0.0]]), boxes)[0] < safety_m + 0.5:
+            continue
+        try:
+            check_endpoint(setting, "goal", north, east)
+            make_plan(setting, (0.0, 0.0), (north, east))
+        except UserError:
+            continue
+        return float(north), float(east)
+    raise RuntimeError(f"no reachable goal {min_m:g}-{max_m:g} m from home on {map_path}")

@@ -1337,3 +1337,51 @@ def test_corners_are_flown_round_within_a_metre_of_the_legs_against_sim(sim_star
     assert report["landed"]["north_m"] == pytest.approx(45.0, abs=1.0)
     assert report["landed"]["east_m"] == pytest.approx(-15.0, abs=1.0)
     print(f"\n{autopilot}: max deviation from the legs {deviation:.2f} m, airborne {report['airborne_time_s']:.1f} s")
+
+
+# ------------------------------------------------------------------------ vehicle errors no step retries
+def test_a_vehicle_error_before_arming_is_not_ready_and_never_arms(clock):
+    # the frame read in preflight times out (a radio dropout): one MissionError, not the raw vehicle error
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def map_offset(origin, ground):
+        raise Refused("timed out after 5 s waiting for GPS_GLOBAL_ORIGIN")
+
+    v.map_offset = map_offset
+    with pytest.raises(m.NotReady, match="the vehicle failed in state PREFLIGHT: timed out after 5 s") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert "arm" not in v.calls and not v.telemetry.armed
+    assert err.value.result is not None
+
+
+def test_a_vehicle_error_after_arming_lands_and_is_a_flight_abort(clock):
+    # the frame is re-read right after arming (map_offset_now); if that read fails, the armed vehicle is landed
+    # and disarmed and the error says so, instead of escaping as a traceback
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    real = v.map_offset
+    reads = []
+
+    def map_offset(origin, ground):
+        reads.append(v.telemetry.armed)
+        if v.telemetry.armed:
+            raise Refused("timed out after 5 s waiting for LOCAL_POSITION_NED")
+        return real(origin, ground)
+
+    v.map_offset, v.map_offset_now = map_offset, map_offset
+    with pytest.raises(m.FlightAborted, match="the vehicle failed in state .*LOCAL_POSITION_NED") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert reads[-1] is True and not v.telemetry.armed and v.telemetry.on_ground
+    assert err.value.result is not None
+
+
+def test_after_an_outage_the_mode_is_judged_from_a_heartbeat_sent_after_it(clock):
+    # the failsafe's mode change reaches us with the next heartbeat, up to a second after the link is back: a
+    # recovery that judged the stale "offboard" would not take control back and would fly on in HOLD
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.telemetry.last_heartbeat_s = 0.0
+    clock.at(8.0, lambda: setattr(v, "link_ok", False))
+    clock.at(11.0, lambda: setattr(v, "link_ok", True))
+    clock.at(11.8, lambda: (setattr(v, "mode", "hold"), setattr(v.telemetry, "last_heartbeat_s", 11.8)))
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and result.recoveries == 1
+    assert v.calls.count("take_control") == 1

@@ -557,7 +557,8 @@ def test_px4_boot_follows_the_sims_fast_align_preset(px4_sitl):
     """PX4 with PX4_EKF2_FAST_ALIGN: home and global position against the sim's ``px4-fast-align`` preset."""
     preset = sim_boot.PRESETS["px4-fast-align"]
     real = px4_sitl.boot
-    assert real["home_s"] == pytest.approx(preset.home_s, abs=1.0)
+    # PX4 SITL runs in real time, so its boot wanders with the machine's load: HOME_POSITION measured 1.3-2.4 s
+    assert real["home_s"] == pytest.approx(preset.home_s, abs=1.5)
     assert real["global_position_s"] == pytest.approx(preset.global_position_s, abs=1.5)
     assert real["local_position_s"] < real["global_position_s"]
 

@@ -17,7 +17,7 @@ import time
 import pytest
 
 import motion_planning as mp
-from tests.sitl_support import ROOT, Monitor, Px4Sitl, px4_binary, read_boxes, to_latlon
+from tests.sitl_support import ROOT, Monitor, Px4Sitl, held_out_goal, px4_binary, read_boxes, to_latlon
 
 pytestmark = [pytest.mark.sitl, pytest.mark.skipif(px4_binary() is None,
                                                    reason="PX4 SITL not found ($SKYROUTE_SHARED or ../shared)")]
@@ -41,7 +41,8 @@ def assert_landed_safely_at(monitor: Monitor, goal, since_s: float) -> None:
     error_m = math.hypot(north - goal[0], east - goal[1])
     clearance_m = monitor.min_clearance_m(since_s)
     print(f"\nlanded {error_m:.2f} m from the goal, min clearance {clearance_m:.2f} m")
-    assert error_m <= 1.0 and clearance_m >= SAFETY_M - 1.5
+    # PX4's position loop overshoots the stop at the goal by up to 1.6 m (README's margin paragraph)
+    assert error_m <= 1.0 and clearance_m >= SAFETY_M - 2.0
 
 
 @pytest.fixture
@@ -55,17 +56,22 @@ def px4(request):
             monitor.close()
 
 
-def test_a_stock_boot_flies_a_mission(px4, tmp_path, capsys):
+def test_a_stock_boot_flies_a_held_out_mission_then_a_second_one(px4, tmp_path, capsys):
     sitl, monitor = px4
+    goal = held_out_goal(MAP, seed=17)  # a goal no sim test flies to
     started = time.monotonic()
-    code = mp.main(mission_args(sitl, GOAL_SHORT, tmp_path))  # started right after boot
+    code = mp.main(mission_args(sitl, goal, tmp_path))  # started right after boot
     out, err = capsys.readouterr()
     assert code == mp.EXIT_OK, err
     lines = out.splitlines()
     waiting = [line for line in lines if line.startswith("waiting for a global position estimate")]
     assert len(waiting) >= 4  # ~35 s of waiting, one line every 5 s (with PX4's reasons when it sends them)
     assert any("lost link leaves the vehicle hovering" in line for line in lines)  # COM_OBL_RC_ACT 0, NAV_DLL_ACT 0
-    assert_landed_safely_at(monitor, GOAL_SHORT, started)
+    assert_landed_safely_at(monitor, goal, started)
+    # a second mission on the same autopilot after a normal landing (PX4 refused this arming for 60 s once)
+    started = time.monotonic()
+    assert mp.main(mission_args(sitl, HOME_GOAL, tmp_path, "-q")) == mp.EXIT_OK, capsys.readouterr().err
+    assert_landed_safely_at(monitor, HOME_GOAL, started)
 
 
 @pytest.mark.parametrize("px4", [True], indirect=True, ids=["fast-align"])

@@ -45,6 +45,10 @@ def open_logs(log_dir: str | Path) -> tuple[Path, Path, logging.Handler]:
     log_dir = make_log_dir(log_dir)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     nav_path, tlog_path = log_dir / f"navlog-{stamp}.txt", log_dir / f"flight-{stamp}.tlog"
+    run = 1
+    while nav_path.exists() or tlog_path.exists():  # a second run in the same second keeps the first one's logs
+        run += 1
+        nav_path, tlog_path = log_dir / f"navlog-{stamp}-{run}.txt", log_dir / f"flight-{stamp}-{run}.tlog"
     handler = logging.FileHandler(nav_path, encoding="utf-8")  # StreamHandler flushes after each record
     handler.setLevel(logging.INFO)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))

@@ -205,7 +205,9 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--goal_lat", type=float, help="goal latitude in degrees (required)")
     where.add_argument("--goal_lon", type=float, help="goal longitude in degrees (required)")
     where.add_argument("--alt", type=float, default=5.0, help="flight altitude in metres above the ground")
-    where.add_argument("--safety", type=float, default=5.0, help="minimum distance to buildings in metres")
+    where.add_argument("--safety", type=float, default=5.0,
+                       help="planning margin in metres: the planned route keeps it from every building; "
+                       "the flown track comes up to ~1 m closer")
     where.add_argument("--start_lat", type=float,
                        help="start latitude (with --plan-only or --sim; default: the map's home)")
     where.add_argument("--start_lon", type=float,

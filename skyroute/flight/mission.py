@@ -377,11 +377,29 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             log.warning("interrupted in state %s", self.state.name)
             self._abandon("interrupted (Ctrl-C)")
             raise
+        except self.vehicle_errors as exc:  # the vehicle failed a request the steps above do not retry
+            raise self._vehicle_failed(exc) from exc
         except Exception as exc:  # a bug, not a refusal: make the vehicle safe, then re-raise it unchanged
             log.exception("unexpected error in state %s", self.state.name)
             self._abandon(f"unexpected error {exc!r}")
             raise
         return self._finish()
+
+    def _vehicle_failed(self, exc: Exception) -> MissionError:
+        """A vehicle error no step handled (a timeout reading the frame at arming, a link gone mid-request): make
+        the vehicle safe, and say what failed where as a MissionError (NotReady on the ground, FlightAborted once
+        armed), so the CLI reports one line instead of a traceback."""
+        state = self.state.name
+        on_the_ground = self.state in (S.MANUAL, S.PREFLIGHT, S.PLANNING, S.ARMING)
+        try:
+            outcome = self._make_safe(f"the vehicle failed in state {state}")
+        except MissionError as unsafe:
+            self._finish(unsafe)
+            return unsafe
+        cls = NotReady if on_the_ground else FlightAborted
+        error = cls(f"the vehicle failed in state {state}: {exc}; {outcome}")
+        self._finish(error)
+        return error
 
     def _abandon(self, why: str) -> None:
         """Make the vehicle safe after Ctrl-C or a bug; a MissionError from that replaces the original."""

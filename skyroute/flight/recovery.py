@@ -22,6 +22,9 @@ from .states import MissionState as S
 
 log = logging.getLogger(__name__)
 
+#: After an outage, wait up to this long (s) for a heartbeat sent after the link came back (autopilots send 1 Hz).
+FRESH_HEARTBEAT_WAIT_S = 1.5
+
 
 class _Abort(Exception):
     """Internal: a timeout or refusal during flight that must end in a landing."""
@@ -56,7 +59,12 @@ class RecoveryMixin:
                                        "s; the autopilot's failsafe now owns the vehicle")
             self.sleep(self.poll_s)
         self._say("the link is back")
-        self.sleep(max(self.poll_s, 0.3))  # let a heartbeat and a position in after the outage
+        back_s = self.clock()
+        self.sleep(max(self.poll_s, 0.3))  # let a position in after the outage
+        # the mode and the armed state come with heartbeats (1 Hz): judge them from one sent after the outage
+        while (getattr(self.vehicle.telemetry, "last_heartbeat_s", math.inf) < back_s
+               and self.clock() < back_s + FRESH_HEARTBEAT_WAIT_S):
+            self.sleep(self.poll_s)
 
     def _recover(self, why: str, *, link_lost: bool, retake: bool = False) -> None:
         """RECOVERING: wait for the link, read the vehicle's real state, take control back; raises _Resumed."""

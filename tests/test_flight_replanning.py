@@ -147,3 +147,33 @@ def test_scans_from_below_the_flight_altitude_are_dropped():
     sensing = Sensing(Vehicle(), Map(), lambda: 0.0)
     sensing.drain((0.0, 0.0), (0.0, 0.0), offset_down_m=-1.0, min_altitude_m=4.0)
     assert len(Map.at) == 2 and sensing.low_scans == 1
+
+
+def test_single_sectors_read_at_one_place_make_one_layer_update_and_whole_scans_their_own():
+    @dataclass
+    class Scan:
+        bearings_rad: np.ndarray
+        local_ne: tuple = (1.0, 2.0)
+        half_width_rad: float = 0.39
+        distances_m: np.ndarray = field(default_factory=lambda: np.array([5.0]))
+        max_range_m: float = 30.0
+        received_s: float = 0.0
+
+    calls = []
+
+    class Map:
+        def add_scan(self, north_m, east_m, bearings, half, distances, max_range_m, error=0.0):
+            calls.append(len(bearings))
+
+    eight = [Scan(np.array([k * 0.785])) for k in range(8)]
+    again = [Scan(np.array([0.0]))]  # the next round's first sector
+    whole = [Scan(np.zeros(72), distances_m=np.ones(72)), Scan(np.zeros(72), distances_m=np.ones(72))]
+
+    class Vehicle:
+        sensing = True
+
+        def sensor_readings(self):
+            return eight + again + whole
+
+    Sensing(Vehicle(), Map(), lambda: 0.0).drain((0.0, 0.0), (0.0, 0.0))
+    assert calls == [8, 1, 72, 72]

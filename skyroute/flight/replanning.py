@@ -46,7 +46,7 @@ class ObstacleMap(Protocol):
     """What the mission needs of the live layer and its replanner (``skyroute.planning.replan.Replanner``)."""
 
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
-                 max_range_m: float) -> object: ...
+                 max_range_m: float, bearing_error_rad: float = 0.0) -> object: ...
 
     def check(self, position_ne: Sequence[float], waypoints_ne: np.ndarray) -> Blockage | None: ...
 
@@ -154,6 +154,15 @@ class Sensing:
             return bool(got)
         n, e = float(position_ne[0]), float(position_ne[1])
         offset = None if offset_ne is None else (float(offset_ne[0]), float(offset_ne[1]))
+        batch: list = []  # sectors read at one place (ArduPilot sends one message per sector): one layer update
+
+        def flush() -> None:
+            if batch:
+                sn, se, half, rng, err = batch[0][:5]
+                self.obstacles.add_scan(sn, se, np.concatenate([b[5] for b in batch]), half,
+                                        np.concatenate([b[6] for b in batch]), rng, err)
+                batch.clear()
+
         for r in got:
             if hasattr(r, "bearings_rad"):
                 down = getattr(r, "local_down_m", None)
@@ -163,13 +172,23 @@ class Sensing:
                     continue
                 at = getattr(r, "local_ne", None)
                 sn, se = (n, e) if at is None or offset is None else (at[0] + offset[0], at[1] + offset[1])
-                self.obstacles.add_scan(sn, se, r.bearings_rad, r.half_width_rad, r.distances_m, r.max_range_m)
+                key = (sn, se, float(r.half_width_rad), float(r.max_range_m),
+                       float(getattr(r, "bearing_error_rad", 0.0)))
+                bearings = np.asarray(r.bearings_rad, float)
+                if batch and (batch[0][:5] != key or len(bearings) != 1
+                              or any(float(b[5][0]) == float(bearings[0]) for b in batch)):
+                    flush()  # a whole scan, another place, or the same sector again: its own update
+                batch.append((*key, bearings, np.asarray(r.distances_m, float)))
+                if len(bearings) != 1:
+                    flush()
                 self.scans += 1
                 received = float(getattr(r, "received_s", math.nan))
                 if math.isfinite(received) and not received >= self._oldest_s:
                     self._oldest_s = received
-            else:
-                self.heights += 1
+                continue
+            flush()
+            self.heights += 1
+        flush()
         return True
 
     def step(self, position_ne: Sequence[float], waypoints_ne: np.ndarray,

@@ -41,6 +41,9 @@ _YAW_ORIENTATIONS = {getattr(mavlink, f"MAV_SENSOR_ROTATION_{name}"): deg for na
     ("YAW_270", 270), ("YAW_315", 315))}
 _NORTH_FRAMES = {mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_LOCAL_NED}
 _TWO_PI = 2.0 * math.pi
+#: How far a heading-relative sector's bearing may be off: ArduCopter yaws at up to ~90 deg/s and the heading comes
+#: with ATTITUDE at 10 Hz, so up to ~10 degrees, with room for the sensor's own sample time.
+HEADING_LAG_RAD = math.radians(15.0)
 
 
 @dataclass(frozen=True)
@@ -53,7 +56,9 @@ class RangeScan:
     the sample, ``received_s`` our monotonic clock when it arrived, ``source`` the message name, ``local_ne`` the
     vehicle's latest local position (autopilot's NED frame, north and east m) when it arrived and ``local_down_m``
     its down coordinate (None: not known): the scan is placed there, not where the vehicle is when the mission gets
-    round to it (a poll later), and a scan taken low (climbing, landing) can be told apart.
+    round to it (a poll later), and a scan taken low (climbing, landing) can be told apart. ``bearing_error_rad``
+    is how far the bearings may be off: 0 for a north-aligned scan, :data:`HEADING_LAG_RAD` for one turned by the
+    heading (the latest ATTITUDE lags a yawing vehicle).
     """
 
     bearings_rad: np.ndarray
@@ -66,6 +71,7 @@ class RangeScan:
     source: str
     local_ne: tuple[float, float] | None = None
     local_down_m: float | None = None
+    bearing_error_rad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -112,7 +118,8 @@ def scan_from_obstacle_distance(msg, received_s: float, heading_rad: float) -> R
     distances = np.array([_cm_to_m(v, msg.min_distance, msg.max_distance, empty_at_max=False) for v in raw])
     bearings = (base + np.radians(float(msg.angle_offset) + increment * np.arange(count))) % _TWO_PI
     return RangeScan(bearings, math.radians(increment) / 2.0, distances, msg.min_distance / 100.0,
-                     msg.max_distance / 100.0, msg.time_usec * 1e-6, received_s, "OBSTACLE_DISTANCE")
+                     msg.max_distance / 100.0, msg.time_usec * 1e-6, received_s, "OBSTACLE_DISTANCE",
+                     bearing_error_rad=HEADING_LAG_RAD if msg.frame == mavlink.MAV_FRAME_BODY_FRD else 0.0)
 
 
 def reading_from_distance_sensor(msg, received_s: float, heading_rad: float) -> RangeScan | HeightReading | None:
@@ -136,7 +143,8 @@ def reading_from_distance_sensor(msg, received_s: float, heading_rad: float) -> 
     distance = _cm_to_m(msg.current_distance, msg.min_distance, msg.max_distance, empty_at_max=True)
     bearing = (heading_rad + math.radians(deg)) % _TWO_PI
     return RangeScan(np.array([bearing]), half, np.array([distance]), msg.min_distance / 100.0,
-                     msg.max_distance / 100.0, msg.time_boot_ms * 1e-3, received_s, "DISTANCE_SENSOR")
+                     msg.max_distance / 100.0, msg.time_boot_ms * 1e-3, received_s, "DISTANCE_SENSOR",
+                     bearing_error_rad=HEADING_LAG_RAD)
 
 
 def translate_sensor(msg, received_s: float, heading_rad: float) -> RangeScan | HeightReading | None:

@@ -100,3 +100,19 @@ def test_feed_stamps_scans_with_the_local_position_they_arrived_at():
     first, second = feed.drain()
     assert first.local_ne == (12.5, -3.0) and first.local_down_m == -4.5
     assert second.local_ne is None and second.local_down_m is None
+
+
+def test_heading_relative_sectors_are_dropped_while_the_vehicle_yaws_fast_and_kept_once_it_holds():
+    feed = SensorFeed()
+
+    def sector(time_ms):
+        return _wire(M.MAVLink_distance_sensor_message(time_ms, 20, 3000, 850, 0, 10, M.MAV_SENSOR_ROTATION_NONE, 0))
+
+    feed.handle(sector(1000), 1.0, 0.0)
+    feed.handle(sector(1100), 1.1, math.radians(9.0))  # 90 deg/s: turning
+    feed.handle(sector(1200), 1.2, math.radians(18.0))
+    assert feed.turning and feed.turning_dropped == 2
+    feed.handle(sector(1800), 1.8, math.radians(18.0))  # held for 0.6 s
+    north = _obstacle_distance([1000] * 72)  # north-aligned scans never depend on the heading
+    feed.handle(north, 1.9, math.radians(18.0))
+    assert not feed.turning and len(feed.drain()) == 3

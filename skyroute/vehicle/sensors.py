@@ -175,6 +175,33 @@ class SensorFeed:
         self.scans = 0
         self.last_scan_s = math.nan
         self.height: HeightReading | None = None
+        self.turning_dropped = 0
+        self._heading: tuple[float, float] | None = None  # (heading_rad, time_s) when it last changed
+        self._yaw_rate_rad_s = 0.0
+
+    #: Above this yaw rate (rad/s) heading-relative sectors are dropped: the heading that turns them lags.
+    MAX_YAW_RATE_RAD_S = math.radians(30.0)
+
+    def _note_heading(self, heading_rad: float, reading) -> None:
+        """Track the yaw rate from the headings the readings came with (their sample times)."""
+        t = float(getattr(reading, "time_s", math.nan))
+        if not (math.isfinite(heading_rad) and math.isfinite(t)):
+            return
+        if self._heading is None:
+            self._heading = (heading_rad, t)
+            return
+        h0, t0 = self._heading
+        turned = abs((heading_rad - h0 + math.pi) % _TWO_PI - math.pi)
+        if turned > 1e-6 and t > t0:
+            self._yaw_rate_rad_s = turned / (t - t0)
+            self._heading = (heading_rad, t)
+        elif t - t0 > 0.5:  # the heading has held for half a second: not turning
+            self._yaw_rate_rad_s = 0.0
+
+    @property
+    def turning(self) -> bool:
+        """True while the vehicle yaws faster than :attr:`MAX_YAW_RATE_RAD_S`."""
+        return self._yaw_rate_rad_s > self.MAX_YAW_RATE_RAD_S
 
     def handle(self, msg, received_s: float, heading_rad: float,
                local_ne: tuple[float, float] | None = None, local_down_m: float | None = None) -> bool:
@@ -184,6 +211,10 @@ class SensorFeed:
             return False
         reading = translate_sensor(msg, received_s, heading_rad)
         if reading is None:
+            return True
+        self._note_heading(heading_rad, reading)
+        if isinstance(reading, RangeScan) and reading.bearing_error_rad > 0 and self.turning:
+            self.turning_dropped += 1  # a heading-relative sector while the heading swings: not placed at all
             return True
         if isinstance(reading, RangeScan) and local_ne is not None and all(map(math.isfinite, local_ne)):
             down = float(local_down_m) if local_down_m is not None and math.isfinite(local_down_m) else None

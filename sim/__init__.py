@@ -139,7 +139,8 @@ touchdown), ``armed_time_s``, ``airborne_time_s``, ``distance_flown_m``, ``max_a
 last HEARTBEAT that counts as the ground station's), ``events`` (every status line:
 ``sim_time_s``, ``kind``, ``text``), ``links`` (per TCP client: ``packets_in/out``, ``dropped_in/out``,
 ``rejected_signature``, ``junk_bytes``), ``signing`` (``enabled``, ``rejected_frames``), ``sensor`` (its
-settings, ``scans``, ``min_reading_m``; or ``{"enabled": false}``).
+settings, ``scans``, ``min_reading_m``; or ``{"enabled": false}``), ``targets`` (``--targets``, :mod:`sim.targets`:
+per target ``index``, ``north_m``, ``east_m``, ``first_seen_s``, ``visited_s``, ``closest_low_m``; ``[]`` without).
 """
 
 from .boot import BootTimeline

@@ -18,6 +18,7 @@ from .config import SimConfig, default_map_path
 from .faults import FaultConfig, command_id
 from .params import ARDUPILOT_PARAMS, PX4_PARAMS
 from .sensors import SensorConfig
+from .targets import read_targets
 from .world import CityMap
 
 
@@ -155,6 +156,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--physics-dt", type=_ranged(0, 0.1, low_open=True), default=0.02,
                    help="fixed physics step (simulated s)")
     g = p.add_argument_group("obstacle sensors (sim/sensors.py; cast against the true boxes of --map)")
+    g.add_argument("--targets", type=Path, default=None, metavar="FILE",
+                   help="ground targets, CSV rows north_m,east_m (map frame): the downward camera reports each "
+                        "in view as LANDING_TARGET; the report says when each was first seen and visited")
     g.add_argument("--no-sensor", action="store_true",
                    help="no obstacle sensors (default: px4 streams OBSTACLE_DISTANCE, 72 x 5 deg north-aligned "
                    "sectors, and a downward DISTANCE_SENSOR; ardupilot sends DISTANCE_SENSOR per 45 deg proximity "
@@ -205,6 +209,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         boot=args.boot, params=dict(args.param), signing_key=args.signing_key, scale_timeouts=args.scale_timeouts,
         sensor=SensorConfig(enabled=not args.no_sensor, range_m=args.sensor_range, rate_hz=args.sensor_rate,
                             noise_m=args.sensor_noise, dropout_pct=args.sensor_dropout),
+        targets=() if args.targets is None else read_targets(args.targets),
     )
 
 
@@ -216,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         config = config_from_args(args)
-    except ValueError as exc:
+    except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     map_path = config.resolved_map_path()

@@ -35,6 +35,7 @@ from .report import Collision, FlightRecorder
 from .sensors import SENSOR_MESSAGE_IDS, ObstacleSensor
 from .setpoints import global_int_target, local_ned_target
 from .streams import StreamScheduler
+from .targets import GroundTargets
 from .tasks import TaskControl
 from .world import CityMap
 
@@ -78,6 +79,7 @@ class Autopilot(CommandHandlers, TaskControl):
         self.command_faults = CommandFaults(config.faults)
         sensing = config.sensor.enabled
         self.sensor = ObstacleSensor(config.sensor, city, config.autopilot, config.seed) if sensing else None
+        self.targets = GroundTargets(config.targets) if config.targets else None
         self.scheduler = StreamScheduler(config.autopilot, config.speedup, config.physics_dt_s,
                                          config.sensor.rate_hz if sensing else None)
         self.rng = random.Random(config.seed)
@@ -374,6 +376,10 @@ class Autopilot(CommandHandlers, TaskControl):
         if self.sensor is not None:
             centre = s.position_neu + np.array([0.0, 0.0, self.cfg.radius_m])
             self.sensor.sample(self.sim_time_s, centre, s.yaw_rad, s.position_neu)
+        if self.targets is not None:
+            self.targets.step(self.sim_time_s, s.position_neu)
+            for msg in self.targets.messages(self.sim_time_s, s.position_neu, self.origin_neu):
+                self.send(None, msg)
         home_up = self.home_neu[2] if self.home_neu is not None else self.boot_neu[2]
         self.recorder.update(dt_s, s.position_neu, self.armed, self.airborne, home_up)
 
@@ -437,7 +443,7 @@ class Autopilot(CommandHandlers, TaskControl):
             float(home_local[0]), float(home_local[1]), float(-home_local[2]) + 0.0,
             self.personality.autopilot, base, self.mode.custom_mode, self.system_status(), self.landed_state(),
             armable, 50 if self.armed and self.airborne else 0,
-            fix_type, has_fix, olat, olon, oalt, not self.is_px4,
+            fix_type, has_fix, olat, olon, oalt, not self.is_px4, self.sensor is not None,
         )
 
     def truth(self) -> dict:

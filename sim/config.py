@@ -78,6 +78,8 @@ class SimConfig:
         SITL startup does with PX4_SIM_SPEED_FACTOR, for clients that pace their streams in wall-clock time.
     sensor : SensorConfig
         The obstacle sensors (:mod:`sim.sensors`; on by default).
+    targets : tuple of (north_m, east_m)
+        Ground targets the downward camera reports (:mod:`sim.targets`); none by default.
     """
 
     map_path: Path | None = None
@@ -102,6 +104,7 @@ class SimConfig:
     signing_key: str | None = None
     scale_timeouts: bool = False
     sensor: SensorConfig = field(default_factory=SensorConfig)
+    targets: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.autopilot not in ("px4", "ardupilot"):

@@ -158,6 +158,7 @@ class Simulator:
             links = [] if self._server is None else self._server.stats()
             report["links"] = links
             report["sensor"] = ap.sensor.report() if ap.sensor is not None else {"enabled": False}
+            report["targets"] = ap.targets.report() if ap.targets is not None else []
             report["signing"] = {"enabled": self._signing_key is not None,
                                  "rejected_frames": sum(link["rejected_signature"] for link in links)}
             return report

@@ -13,6 +13,15 @@ from pymavlink.dialects.v20 import common as mavlink
 from sim import FaultConfig, SimConfig, Simulator, write_colliders
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """The SITL tests run one after another in one pytest-xdist worker (``--dist loadgroup``): two real autopilots
+    booting side by side on 2 cores miss their real-time deadlines (PX4 SIH then refuses to arm)."""
+    for item in items:
+        if item.get_closest_marker("sitl") is not None:
+            item.add_marker(pytest.mark.xdist_group("sitl"))
+
+
 @pytest.fixture(autouse=True)
 def _no_compile_notice_in_process(request, monkeypatch):
     """In-process CLI tests check stderr line by line, and which of them happens to compile a kernel first (and so

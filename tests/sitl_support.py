@@ -26,24 +26,24 @@ from pathlib import Path
 
 import numpy as np
 
+from tests import shared
+
 ROOT = Path(__file__).resolve().parents[1]
 WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
 
 
-def shared_dir() -> Path:
-    """``$SKYROUTE_SHARED`` if set, else ``../shared`` next to the project root."""
-    env = os.environ.get("SKYROUTE_SHARED")
-    return Path(env) if env else ROOT.parent / "shared"
+shared_dir = shared.shared_dir  # the one rule (tests/shared.py): $SKYROUTE_SHARED, else ../shared
 
 
 def arducopter_binary() -> Path | None:
-    path = shared_dir() / "sitl" / "arducopter"
-    return path if path.is_file() and os.access(path, os.X_OK) else None
+    """The ArduCopter SITL binary in the shared directory (:func:`tests.shared.arducopter`), or None."""
+    return shared.arducopter()
 
 
 def px4_binary() -> Path | None:
-    path = shared_dir() / "sitl" / "px4" / "bin" / "px4"
-    return path if path.is_file() and os.access(path, os.X_OK) else None
+    """PX4 SITL's ``bin/px4`` in the shared directory (:func:`tests.shared.px4_dir`), or None."""
+    px4 = shared.px4_dir()
+    return None if px4 is None else px4 / "bin" / "px4"
 
 
 # ------------------------------------------------------------------------------------------------ geometry

@@ -89,7 +89,7 @@ def test_the_vehicle_link_knows_nothing_of_planning_or_missions():
     ("aiohttp", ("skyroute.view.live",)),
     ("numba", ("skyroute.planning.kernels", "skyroute.planning.any_angle", "skyroute.planning.grid3d")),
     ("networkx", ("skyroute.planning.graphs", "skyroute.planning.sampling")),
-    ("skimage", ("skyroute.planning.graphs",)),
+    ("skimage", ("skyroute.planning.graphs", "skyroute.planning.explore")),
     ("scipy", ("skyroute.planning.graphs", "skyroute.planning.sampling", "skyroute.planning.replan")),
     ("pymap3d", ("skyroute.frames",)),
 ])

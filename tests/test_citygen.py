@@ -11,6 +11,7 @@ import pytest
 from scipy import ndimage
 
 from skyroute import citygen
+from tests import shared
 
 REPO = Path(__file__).resolve().parent.parent
 SHIPPED = REPO / "colliders.csv"
@@ -157,12 +158,14 @@ def test_the_bundled_map_covers_the_sf_maps_extent(bundled):
     hi = (bundled[:, :2] + bundled[:, 3:5]).max(axis=0)
     (n0, n1), (e0, e1) = SF_EXTENT
     assert lo[0] <= n0 and hi[0] >= n1 and lo[1] <= e0 and hi[1] >= e1
-    from skyroute import sfmap
 
-    if sfmap.local_copy() is not None:  # the constants above, checked against the real map when it is here
-        sf = read(sfmap.local_copy())
-        assert np.allclose((sf[:, :2] - sf[:, 3:5]).min(axis=0), [n0, e0], atol=0.01)
-        assert np.allclose((sf[:, :2] + sf[:, 3:5]).max(axis=0), [n1, e1], atol=0.01)
+
+@shared.needs_sf_map
+def test_the_sf_extent_above_is_the_real_maps():
+    sf = read(shared.sf_map())
+    (n0, n1), (e0, e1) = SF_EXTENT
+    assert np.allclose((sf[:, :2] - sf[:, 3:5]).min(axis=0), [n0, e0], atol=0.01)
+    assert np.allclose((sf[:, :2] + sf[:, 3:5]).max(axis=0), [n1, e1], atol=0.01)
 
 
 def test_a_ring_road_separates_the_900m_city_from_the_extension(bundled, city):

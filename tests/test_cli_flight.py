@@ -22,6 +22,13 @@ import pytest
 
 import motion_planning as mp
 from sim import FaultConfig, SimConfig, Simulator, write_colliders
+from tests.exit_codes import (  # README's numbers, not the code's constants
+    EXIT_BAD_INPUT,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_NO_PATH,
+    EXIT_OK,
+)
 
 pytestmark = pytest.mark.flight
 
@@ -159,7 +166,7 @@ def test_mission_lands_at_the_goal(start_sim, tmp_path, capsys, autopilot, start
     code = fly(sim, tmp_path, goal=goal)
     report = sim.stop()
     out, err = capsys.readouterr()
-    assert code == mp.EXIT_OK, err
+    assert code == EXIT_OK, err
     summary = [line for line in out.splitlines() if line.startswith("mission complete:")]
     assert len(summary) == 1 and "landing error" in summary[0]
     assert err == ""
@@ -223,7 +230,7 @@ def test_600_m_mission_time(start_sim, tmp_path, capsys, watchdog, goal):
                     f"{SAFETY_M:g}", "--connection", f"tcp:127.0.0.1:{sim.port}", "--timeout", "5", "--log-dir",
                     str(tmp_path / "logs")])
     report = sim.stop()
-    assert code == mp.EXIT_OK, capsys.readouterr().err
+    assert code == EXIT_OK, capsys.readouterr().err
     horizontal_m = report["distance_flown_m"] - 2 * ALT_M
     ideal_s = horizontal_m / cruise_m_s + ALT_M / climb_m_s + ALT_M / land_m_s
     ratio = report["airborne_time_s"] / ideal_s
@@ -284,7 +291,7 @@ def test_no_autopilot_answering(tmp_path, capsys, listening):
                         f"{timeout_s:g}", "--log-dir", str(tmp_path / "logs")])
         elapsed_s = time.monotonic() - t0
     err = one_line(capsys.readouterr().err)
-    assert code == mp.EXIT_BAD_INPUT
+    assert code == EXIT_BAD_INPUT
     assert err.startswith(f"error: no autopilot answered on tcp:127.0.0.1:{port}") and "heartbeat" in err
     assert elapsed_s < timeout_s + 3.0  # map loading included
 
@@ -298,7 +305,7 @@ def test_bad_goal_is_refused_before_arming(start_sim, tmp_path, capsys, goal, wh
     code = fly(sim, tmp_path, goal=goal)
     report = sim.stop()
     err = one_line(capsys.readouterr().err)
-    assert code == mp.EXIT_BAD_INPUT
+    assert code == EXIT_BAD_INPUT
     assert err.startswith("error: goal ") and what in err
     assert not report["commands"]  # refused before connecting, let alone arming
     assert_never_armed(report)
@@ -309,7 +316,7 @@ def test_no_path_is_found_before_arming(start_sim, tmp_path, capsys, walled_goal
     code = fly(sim, tmp_path, "--map", str(walled_goal_map), goal=(40.0, 0.0))
     report = sim.stop()
     err = one_line(capsys.readouterr().err)
-    assert code == mp.EXIT_NO_PATH
+    assert code == EXIT_NO_PATH
     assert err.startswith("error: no path from ") and "never armed" in err
     assert_never_armed(report)  # planned first: nothing to undo
     assert report["max_altitude_m"] is None and not report["landings"]
@@ -323,7 +330,7 @@ def test_arm_refused_until_the_timeout_quotes_the_autopilot(start_sim, tmp_path,
     elapsed_s = time.monotonic() - t0
     report = sim.stop()
     err = one_line(capsys.readouterr().err)
-    assert code == mp.EXIT_BAD_INPUT
+    assert code == EXIT_BAD_INPUT
     assert err.startswith("error: the autopilot refused to arm for 5 s")
     assert "TEMPORARILY_REJECTED" in err and "fault injection: arming denied" in err  # the sim's STATUSTEXT
     refusals = arm_commands(report)
@@ -337,7 +344,7 @@ def test_arm_refused_twice_then_accepted_flies(start_sim, tmp_path, capsys, bloc
     code = fly(sim, tmp_path, "--map", str(block_map), "--arm-timeout", "10", goal=GOAL_BEHIND_BLOCK)
     report = sim.stop()
     out, err = capsys.readouterr()
-    assert code == mp.EXIT_OK, err
+    assert code == EXIT_OK, err
     assert one_line("\n".join(x for x in out.splitlines() if x.startswith("mission complete:")))
     assert [c["result_name"] for c in arm_commands(report)] == ["MAV_RESULT_TEMPORARILY_REJECTED"] * 2 + [
         "MAV_RESULT_ACCEPTED"]
@@ -359,7 +366,7 @@ def test_link_lost_in_flight_gives_up_after_link_timeout(start_sim, tmp_path, ca
     elapsed_s = time.monotonic() - t0
     report = sim.stop()
     err = one_line(capsys.readouterr().err)
-    assert code == mp.EXIT_FAILED
+    assert code == EXIT_FAILED
     assert err.startswith("error: mission failed: the link was lost") and "for 2 s" in err and "failsafe" in err
     assert elapsed_s < 10.0 + 2.0 + 2.0 + 5.0
     # truth: it was flying when the link went, the autopilot's failsafe holds it, nothing was hit
@@ -385,7 +392,7 @@ def test_ctrl_c_in_flight_lands_then_exits_130(start_sim, tmp_path, capsys, bloc
     code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)
     report = sim.stop()
     out, err = capsys.readouterr()
-    assert code == mp.EXIT_INTERRUPTED
+    assert code == EXIT_INTERRUPTED
     assert one_line(err) == "interrupted: the vehicle was landed and disarmed first"
     assert "mission complete" not in out and len(calls) == 3
     # truth: it flew, then landed (short of the goal) and disarmed
@@ -403,6 +410,110 @@ def test_ctrl_c_in_flight_lands_then_exits_130(start_sim, tmp_path, capsys, bloc
     assert_down_and_disarmed(report)
 
 
+def client_packets(tlog: Path) -> list:
+    """The packets the client sent (not the autopilot's, system 1) in ``tlog``, read by pymavlink's tlog reader."""
+    from pymavlink import mavutil
+
+    log = mavutil.mavlink_connection(str(tlog))
+    try:
+        sent = []
+        while (msg := log.recv_match()) is not None:
+            if msg.get_type() != "BAD_DATA" and msg.get_srcSystem() != 1:
+                sent.append(msg)
+        return sent
+    finally:
+        log.close()
+
+
+def packets_in(report: dict) -> int:
+    """How many packets the sim has received over all its links (its own count, ``report["links"]``)."""
+    return sum(link["packets_in"] for link in report["links"])
+
+
+def test_sigterm_in_flight_lands_exits_130_and_the_tlog_holds_every_packet_sent(start_sim, tmp_path, block_map,
+                                                                                 watchdog):
+    """`kill <client>` in the air: the client (a child process, so the signal is real) lands and disarms, exits
+    with README's 130, and its tlog, read with pymavlink while the client still flies and again after it exits,
+    holds every packet the sim had received from it by then (written and flushed as they go, never lost)."""
+    import subprocess
+    import sys
+
+    watchdog(90.0)
+    # 5x: the ~130 m flight is ~15 s of the sim's time, 3 s of wall time: time enough to look in the air
+    sim = start_sim(map_path=block_map, speedup=5.0)
+    logs = tmp_path / "logs"
+    script = Path(mp.__file__).resolve()
+    client = subprocess.Popen(
+        [sys.executable, str(script), *goal_args(*GOAL_BEHIND_BLOCK), "--map", str(block_map), "--alt", f"{ALT_M:g}",
+         "--safety", f"{SAFETY_M:g}", "--connection", f"tcp:127.0.0.1:{sim.port}", "--timeout", "5", "--log-dir",
+         str(logs), "-q"],
+        cwd=script.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )
+    try:
+        # airborne at the flight altitude, by the sim's truth (not a wall-clock guess)
+        sim.wait_until(lambda s: s["armed"] and not s["on_ground"] and s["position"]["up_m"] > ALT_M - 1.0, 60.0)
+        # what the sim has received so far; then one more packet, sent after all of those (one send lock)
+        received = packets_in(sim.report())
+        deadline = time.monotonic() + 10.0
+        while packets_in(sim.report()) <= received and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert client.poll() is None, "the client should still be flying"
+        (tlog,) = logs.glob("flight-*.tlog")
+        in_flight = client_packets(tlog)  # read while the client runs: flushed, not held in a buffer
+        assert len(in_flight) >= received, (len(in_flight), received)
+        assert {"HEARTBEAT", "COMMAND_LONG", "SET_POSITION_TARGET_LOCAL_NED"} <= {m.get_type() for m in in_flight}
+        signalled_s = sim.truth()["sim_time_s"]
+        assert not sim.truth()["on_ground"]
+        client.send_signal(signal.SIGTERM)
+        out, err = client.communicate(timeout=60)
+    finally:
+        if client.poll() is None:
+            os.killpg(client.pid, signal.SIGKILL)
+            client.wait()
+    report = sim.stop()
+    assert client.returncode == EXIT_INTERRUPTED, err
+    # the console shows the mission's warnings (logging at WARNING), then the outcome; never a traceback
+    assert err.splitlines()[-1] == "interrupted: the vehicle was landed and disarmed first" and "Traceback" not in err
+    assert "mission complete" not in out
+    # truth: landed after the signal, short of the goal (where it was), then disarmed; nothing hit
+    (landing,) = report["landings"]
+    assert landing["sim_time_s"] > signalled_s
+    assert distance_m(landing["lat_deg"], landing["lon_deg"], *to_latlon(*GOAL_BEHIND_BLOCK)) > 10.0
+    disarmed = [e for e in report["events"] if e["kind"] == "disarmed"]
+    assert len(disarmed) == 1 and disarmed[0]["sim_time_s"] >= landing["sim_time_s"]
+    assert_down_and_disarmed(report)
+    # every packet the sim received is in the tlog, the landing command among them, and the file ends cleanly
+    sent = client_packets(tlog)
+    assert len(sent) >= packets_in(report)
+    landing_commands = [m for m in sent if m.get_type() == "COMMAND_LONG" and m.command == 21]  # MAV_CMD_NAV_LAND
+    assert landing_commands
+    assert [m.get_msgbuf() for m in in_flight] == [m.get_msgbuf() for m in sent[:len(in_flight)]]
+
+
+START_IN_MARGIN = (41.0, 0.0)  # 4 m south of block_map's block (N 45..75): inside the 5 m margin, on open ground
+
+
+def test_a_start_inside_the_margin_leads_out_and_lands_at_the_goal(start_sim, tmp_path, capsys, block_map):
+    """README: a vehicle that starts inside the safety margin (not in a building) leads out and flies."""
+    sim = start_sim(map_path=block_map, start=to_latlon(*START_IN_MARGIN))
+    code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)
+    report = sim.stop()
+    assert code == EXIT_OK, capsys.readouterr().err
+    # truth: it started where asked, inside the margin by the block's own numbers (N 45 - 41 = 4 m < 5 m)
+    start = report["start"]
+    assert distance_m(start["lat_deg"], start["lon_deg"], *to_latlon(*START_IN_MARGIN)) < 0.1
+    start_clearance_m = 45.0 - START_IN_MARGIN[0]
+    assert start_clearance_m < SAFETY_M
+    landed = report["landed"]
+    assert distance_m(landed["lat_deg"], landed["lon_deg"], *to_latlon(*GOAL_BEHIND_BLOCK)) < 1.0
+    assert not report["collisions"] and not report["crashed"]
+    # it led out rather than closing in: never nearer the block than its start cell's centre (<= 0.71 m off the
+    # start) less the 1 m the flight tests allow for tracking
+    assert report["min_clearance_m"] >= start_clearance_m - 0.71 - 1.0
+    assert_down_and_disarmed(report)
+    assert_no_failsafe(report)
+
+
 # ------------------------------------------------------------------------------- real links, real autopilots
 @pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
 def test_a_second_and_third_mission_fly_on_the_same_running_sim(start_sim, tmp_path, capsys, watchdog, autopilot):
@@ -412,7 +523,7 @@ def test_a_second_and_third_mission_fly_on_the_same_running_sim(start_sim, tmp_p
     sim = start_sim(autopilot=autopilot)
     goals = [GOAL_SHORT, (0.5, 0.5), GOAL_SHORT]
     for goal in goals:
-        assert fly(sim, tmp_path, "-q", goal=goal) == mp.EXIT_OK, capsys.readouterr().err
+        assert fly(sim, tmp_path, "-q", goal=goal) == EXIT_OK, capsys.readouterr().err
     report = sim.stop()
     assert len(report["landings"]) == 3 and not report["collisions"]
     landed = report["landed"]
@@ -431,7 +542,7 @@ def test_a_3_s_outage_mid_flight_is_ridden_out_and_the_mission_completes(start_s
     code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)
     report = sim.stop()
     out, err = capsys.readouterr()
-    assert code == mp.EXIT_OK, err
+    assert code == EXIT_OK, err
     assert any("the link was lost" in line and "failsafe has the vehicle" in line for line in out.splitlines())
     assert "control taken back: flying on from where the vehicle is" in out
     landed = report["landed"]
@@ -447,7 +558,7 @@ def test_200_ms_of_latency_flies_at_cruise_speed(start_sim, tmp_path, capsys, wa
     airborne = {}
     for latency_ms in (0.0, 200.0):
         sim = start_sim(speedup=2.0, faults=FaultConfig(latency_ms=latency_ms))
-        assert fly(sim, tmp_path, "-q", goal=GOAL_SHORT) == mp.EXIT_OK, capsys.readouterr().err
+        assert fly(sim, tmp_path, "-q", goal=GOAL_SHORT) == EXIT_OK, capsys.readouterr().err
         report = sim.stop()
         airborne[latency_ms] = report["airborne_time_s"]
         landed = report["landed"]
@@ -466,7 +577,7 @@ def test_a_connection_string_pymavlink_cannot_open_is_a_one_line_error(tmp_path,
     code = mp.main([*goal_args(*GOAL_SHORT), "--connection", connection, "--timeout", "1", "--log-dir",
                     str(tmp_path / "logs")])
     err = one_line(capsys.readouterr().err)
-    assert code == mp.EXIT_BAD_INPUT
+    assert code == EXIT_BAD_INPUT
     assert err.startswith(f"error: cannot open connection {connection!r}: ") and why in err
 
 
@@ -475,12 +586,12 @@ def test_a_connection_string_pymavlink_cannot_open_is_a_one_line_error(tmp_path,
 def test_signing_on_both_ends(start_sim, tmp_path, capsys, watchdog):
     watchdog(60.0)
     sim = start_sim(signing_key="skyroute e2e signing")
-    assert fly(sim, tmp_path, "--signing-key", "skyroute e2e signing", goal=GOAL_SHORT) == mp.EXIT_OK, \
+    assert fly(sim, tmp_path, "--signing-key", "skyroute e2e signing", goal=GOAL_SHORT) == EXIT_OK, \
         capsys.readouterr().err
     capsys.readouterr()
     # without the key the client hears the sim's signed heartbeats, and the sim would drop its unsigned commands:
     # the client says so at once instead of retrying an arm nobody answers
-    assert fly(sim, tmp_path, "--timeout", "1", goal=(0.5, 0.5)) == mp.EXIT_BAD_INPUT
+    assert fly(sim, tmp_path, "--timeout", "1", goal=(0.5, 0.5)) == EXIT_BAD_INPUT
     assert "signs its MAVLink messages and drops unsigned ones: give its key with --signing-key" in \
         one_line(capsys.readouterr().err)
     report = sim.stop()
@@ -489,12 +600,12 @@ def test_signing_on_both_ends(start_sim, tmp_path, capsys, watchdog):
 
 def test_progress_lines_say_what_the_client_waits_for_and_q_silences_them(start_sim, tmp_path, capsys):
     sim = start_sim()
-    assert fly(sim, tmp_path, goal=GOAL_SHORT) == mp.EXIT_OK
+    assert fly(sim, tmp_path, goal=GOAL_SHORT) == EXIT_OK
     lines = capsys.readouterr().out.splitlines()
     for start in ("connecting to ", "connected to a PX4 autopilot", "map ground at ", "planning from map ",
                   "taking off to 5.0 m", "waypoint 1/", "goal reached at ", "mission complete: "):
         assert any(line.startswith(start) for line in lines), (start, lines)
-    assert fly(sim, tmp_path, "-q", goal=(0.5, 0.5)) == mp.EXIT_OK
+    assert fly(sim, tmp_path, "-q", goal=(0.5, 0.5)) == EXIT_OK
     lines = [line for line in capsys.readouterr().out.splitlines() if line]
     assert len(lines) == 1 and lines[0].startswith("mission complete: ")
 
@@ -532,7 +643,7 @@ def test_sim_option_flies_the_bundled_sim_and_stops_it(tmp_path, capsys, monkeyp
     monkeypatch.setattr(vehicle.MavlinkVehicle, "goto_local", goto_and_look)
     code = mp.main(["--sim", *goal_args(*GOAL_SHORT), "--log-dir", str(tmp_path), "--speedup", "10"])
     out, err = capsys.readouterr()
-    assert code == mp.EXIT_OK, err
+    assert code == EXIT_OK, err
     assert sum(line.startswith("mission complete:") for line in out.splitlines()) == 1
     (summary,) = [line for line in out.splitlines() if line.startswith("sim report:")]
     assert ", 0 collisions," in summary and "landed at" in summary
@@ -560,11 +671,9 @@ def test_sigterm_during_sim_lands_stops_the_sim_and_exits_130(tmp_path):
         cwd=script.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
-        deadline = time.monotonic() + 60
-        for line in client.stdout:  # wait until the mission is under way
-            if line.startswith("connected to") or time.monotonic() > deadline:
-                break
-        time.sleep(3.0)  # airborne by now (takeoff takes ~2 s of sim time at 10x)
+        # airborne: the first waypoint reached (the event itself, not a wall-clock guess); the watchdog bounds it
+        flying = next((line for line in client.stdout if line.startswith("waypoint 1/")), None)
+        assert flying is not None, "the client ended before its first waypoint"
         sims = {pid for pid in _pids_of_parent(client.pid)}
         assert sims, "the bundled sim should be running"
         client.send_signal(signal.SIGTERM)
@@ -573,7 +682,7 @@ def test_sigterm_during_sim_lands_stops_the_sim_and_exits_130(tmp_path):
         if client.poll() is None:
             client.kill()
             client.wait()
-    assert client.returncode == mp.EXIT_INTERRUPTED, err
+    assert client.returncode == EXIT_INTERRUPTED, err
     assert "interrupted" in err
     assert not any(Path(f"/proc/{pid}").exists() for pid in sims), "the sim child was left running"
     import json
@@ -581,6 +690,10 @@ def test_sigterm_during_sim_lands_stops_the_sim_and_exits_130(tmp_path):
     (report_path,) = tmp_path.glob("sim-report-*.json")
     report = json.loads(report_path.read_text())
     assert report["collisions"] == [] and not report["final"]["armed"] and report["final"]["on_ground"]
+    # it was flying when the signal came, and landed short of the goal (where it was) before it exited
+    assert report["airborne_time_s"] > 0 and len(report["landings"]) == 1
+    landed = report["landed"]
+    assert distance_m(landed["lat_deg"], landed["lon_deg"], *to_latlon(*GOAL_SHORT)) > 5.0
 
 
 def _pids_of_parent(parent: int) -> set[int]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -12,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from motion_planning import DEFAULT_MAP, EXIT_BAD_INPUT, EXIT_NO_PATH, main
-from planning_utils import create_grid, line_of_sight, read_colliders
-from skyroute import sfmap
+from motion_planning import DEFAULT_MAP, main
+from planning_utils import read_colliders
 from skyroute.frames import Geodetic, LocalNED, ned_to_geodetic
+from tests import clearance, geodesy, shared
+from tests.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NO_PATH, EXIT_OK
 
 ROOT = Path(__file__).resolve().parents[1]
 HOME = Geodetic(37.792480, -122.397450, 0.0)
@@ -46,9 +48,7 @@ def test_json_plan_goes_round_the_wall_and_every_leg_is_free(walled_map, capsys)
     assert np.allclose(waypoints[0, :2], (0.5, 0.5)) and np.allclose(waypoints[-1, :2], (35.5, 0.5), atol=0.01)
     assert (waypoints[:, 2] == 5).all()
     assert np.abs(waypoints[:, 1]).max() >= 32  # round an end of the wall (30 m + 2 m margin)
-    grid, n0, e0 = create_grid(read_colliders(walled_map).obstacles, 5, 2)
-    cells = np.floor(waypoints[:, :2] - (n0, e0)).astype(int)
-    assert all(line_of_sight(grid, a, b) for a, b in zip(cells[:-1], cells[1:]))
+    assert clearance.legs_too_close(waypoints, read_colliders(walled_map).obstacles, 2) == []
     for k in range(1, len(waypoints)):  # headings point along the arriving leg
         leg = waypoints[k, :2] - waypoints[k - 1, :2]
         assert math.isclose(waypoints[k, 3], math.atan2(leg[1], leg[0]), abs_tol=1e-3)
@@ -206,7 +206,7 @@ def test_goal_beside_a_low_building_is_refused_because_the_descent_passes_it(tmp
 
 def test_plot_into_a_missing_directory_is_refused_before_planning(walled_map, tmp_path, capsys):
     target = tmp_path / "missing" / "plan.png"
-    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--plot", str(target)]) == 2
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--plot", str(target)]) == EXIT_BAD_INPUT
     captured = capsys.readouterr()
     assert "is not a directory" in captured.err and captured.out == ""
 
@@ -224,11 +224,10 @@ def test_an_installed_script_without_a_map_beside_it_uses_the_working_directory(
 # The SF map, bad map files and options, progress lines
 
 
-SF_MAP = sfmap.local_copy()
-needs_sf = pytest.mark.skipif(SF_MAP is None, reason="no local copy of the SF map (python -m skyroute.sfmap)")
+SF_MAP = shared.sf_map()
 
 
-@needs_sf
+@shared.needs_sf_map
 def test_the_goal_a_square_margin_shut_in_a_pocket_plans_on_the_sf_map(capsys):
     # Issue 10's case: with square-grown buildings this goal sat in a pocket (exit 3); an independent 0.5 m
     # raster connects it with more than 6.5 m of clearance.
@@ -321,3 +320,352 @@ def test_a_plan_only_grid_run_loads_no_graph_or_plotting_library():
             "print(sorted(m for m in ('scipy', 'skimage', 'networkx', 'matplotlib', 'pymavlink') if m in sys.modules))")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
     assert result.stdout.strip().splitlines()[-1] == "[]"
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# What README.md promises: the exit codes and the --json document
+
+
+def test_readme_documents_the_exit_codes_these_tests_check():
+    text = " ".join((ROOT / "README.md").read_text().split())
+    assert f"Exit codes: {EXIT_OK} success; {EXIT_FAILED} the mission took off but did not complete" in text
+    assert f"; {EXIT_BAD_INPUT} bad input or a refusal before takeoff" in text
+    assert f"; {EXIT_NO_PATH} no path" in text and f"; {EXIT_INTERRUPTED} interrupted by Ctrl-C or SIGTERM" in text
+
+
+# Seattle, far from the default map's home: a document that reported the default home, or the SF one, fails.
+SEATTLE = (47.620500, -122.349300)
+
+
+def test_json_documents_home_map_altitude_and_safety_as_given(tmp_path, capsys):
+    path = tmp_path / "seattle.csv"
+    path.write_text(f"lat0 {SEATTLE[0]:.6f}, lon0 {SEATTLE[1]:.6f}\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+                    "20,0,10,1,30,10\n-40,-40,1,1,1,1\n40,40,1,1,1,1\n")
+    first_line = path.read_text().splitlines()[0]
+    home_lat, home_lon = (float(field.split()[1]) for field in first_line.split(","))
+    start = geodesy.ned_to_latlon(-30.3, 25.3, home_lat, home_lon)
+    goal = geodesy.ned_to_latlon(35.3, 0.3, home_lat, home_lon)
+    code = main(["--plan-only", "--json", "--map", str(path), "--alt", "7.5", "--safety", "2.5",
+                 "--start_lat", f"{start[0]:.9f}", "--start_lon", f"{start[1]:.9f}",
+                 "--goal_lat", f"{goal[0]:.9f}", "--goal_lon", f"{goal[1]:.9f}"])
+    assert code == EXIT_OK, capsys.readouterr().err
+    doc = json.loads(capsys.readouterr().out)
+    assert {"waypoints", "stats", "home", "start", "goal", "map", "altitude_m", "safety_m"} <= doc.keys()
+    assert doc["home"] == {"lat_deg": home_lat, "lon_deg": home_lon}
+    assert doc["map"] == str(path)
+    assert doc["altitude_m"] == 7.5 and doc["safety_m"] == 2.5
+    for name, (lat, lon), (north_m, east_m) in (("start", start, (-30.3, 25.3)), ("goal", goal, (35.3, 0.3))):
+        assert (doc[name]["lat_deg"], doc[name]["lon_deg"]) == pytest.approx((lat, lon), abs=1e-8)
+        assert (doc[name]["north_m"], doc[name]["east_m"]) == pytest.approx((north_m, east_m), abs=0.01)
+    waypoints = np.array(doc["waypoints"])
+    assert (waypoints[:, 2] == 7.5).all()  # flown at the altitude given
+    assert waypoints[0, :2] == pytest.approx([-30.5, 25.5]) and waypoints[-1, :2] == pytest.approx([35.5, 0.5])
+
+
+# A child running the real command line, with planning replaced by a step that signals the process and waits, so
+# the signal arrives while "planning" (deterministically; no race against a real planner's speed).
+_INTERRUPTED_CHILD = """
+import os, signal, sys, time
+import skyroute.cli.main as cli
+
+def planning_interrupted(*args, **kwargs):
+    os.kill(os.getpid(), signal.{signal})
+    time.sleep(60)
+    raise SystemExit("the signal did not interrupt planning")
+
+cli.make_plan = planning_interrupted
+# Python turns SIGINT into KeyboardInterrupt unless it started with SIGINT ignored (a background job, some test
+# runners): make it do so here as in a terminal.
+signal.signal(signal.SIGINT, signal.default_int_handler)
+sys.exit(cli.main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"])
+def test_a_signal_while_planning_exits_130_with_one_line(walled_map, signal_name):
+    result = subprocess.run(
+        [sys.executable, "-c", _INTERRUPTED_CHILD.format(signal=signal_name), "--plan-only", "-q", "--map",
+         str(walled_map), "--safety", "2", *latlon(35.3, 0.3)],
+        capture_output=True, text=True, cwd=ROOT, timeout=120,
+    )
+    assert result.returncode == EXIT_INTERRUPTED, result.stderr
+    assert result.stderr.strip() == "interrupted" and result.stdout == ""
+
+
+def test_a_reader_that_leaves_early_gets_exit_1_and_no_traceback(walled_map):
+    # `... --json | head -c 0`: the pipe's reading end is closed before the plan is written.
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "motion_planning.py"), "--plan-only", "--json", "-q", "--map", str(walled_map),
+         "--safety", "2", *latlon(35.3, 0.3)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    proc.stdout.close()
+    err = proc.stderr.read()
+    assert proc.wait(timeout=120) == EXIT_FAILED and err == ""
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Options: README's defaults, the ranges refused, the parts of the map a goal may be in
+
+
+def readme_option_defaults() -> dict[str, object]:
+    """README's options table as ``{option: default}``, the default read from the table's words: a number, a
+    quoted word, ``off`` (a flag not given), ``none``; options sharing a row share its comma-separated defaults."""
+    defaults = {}
+    for line in (ROOT / "README.md").read_text().splitlines():
+        cells = [cell.strip() for cell in line.split("|")[1:-1]]
+        if len(cells) != 3 or not cells[0].startswith("`-"):
+            continue
+        names = [name.strip("`").split()[0] for name in cells[0].split(", ")]
+        names = [name for name in names if name.startswith("--")]
+        words = [word.strip("`") for word in cells[1].split(", ")] if len(names) > 1 else [cells[1].strip("`")]
+        for name, word in zip(names, words):
+            if word.startswith("off"):
+                defaults[name] = None if name == "--view" else False
+            elif word == "none":
+                defaults[name] = None
+            elif word.replace(".", "", 1).isdigit():
+                defaults[name] = float(word) if "." in word and word.count(".") == 1 else word
+            elif " " not in word and ":" not in word and not word.startswith("("):
+                defaults[name] = word
+    return defaults
+
+
+def test_the_parsers_defaults_are_readmes_and_run_has_the_same():
+    import inspect
+
+    from skyroute.cli import main as cli
+
+    documented = readme_option_defaults()
+    assert {"--alt", "--safety", "--seed", "--samples", "--port", "--host", "--speedup", "--timeout",
+            "--arm-timeout", "--link-timeout", "--log-dir", "--planner", "--sim", "--json"} <= documented.keys()
+    parser = cli.build_parser()
+    parsed = vars(parser.parse_args([]))
+    dests = {opt: action.dest for action in parser._actions for opt in action.option_strings}
+    run_defaults = {name: p.default for name, p in inspect.signature(cli.run).parameters.items()}
+    for option, default in documented.items():
+        value = parsed[dests[option]]
+        if isinstance(default, float) or (isinstance(default, str) and default.isdigit()):
+            assert value == float(default), option
+        else:
+            assert value == default, option
+        if dests[option] in run_defaults:  # run(), the API under the command line, has the same defaults
+            assert run_defaults[dests[option]] == value, option
+
+
+@pytest.mark.parametrize("name, accepted, refused", [
+    ("goal_lat", [-90.0, 90.0], [-90.000001, 90.000001]),
+    ("start_lat", [-90.0, 90.0], [-90.000001, 90.000001]),
+    ("goal_lon", [-180.0, 180.0], [-180.000001, 180.000001]),
+    ("start_lon", [-180.0, 180.0], [-180.000001, 180.000001]),
+    ("alt", [1e-9, 10_000.0], [0.0, 10_000.000001]),
+    ("safety", [0.0, 1_000.0], [-1e-9, 1_000.000001]),
+    ("goal_alt", [0.0, 10_000.0], [-1e-9, 10_000.000001]),
+    ("speedup", [1e-9, 1_000.0], [0.0, 1_000.000001]),
+    ("timeout", [1e-9, 86_400.0], [0.0, 86_400.000001]),
+    ("arm_timeout", [1e-9, 86_400.0], [0.0, 86_400.000001]),
+    ("link_timeout", [1e-9, 86_400.0], [0.0, 86_400.000001]),
+    ("port", [1, 65_535], [0, 65_536]),
+    ("seed", [0, 2**32 - 1], [-1, 2**32]),
+    ("samples", [2, 1_000_000], [1, 1_000_001]),
+])
+def test_numbers_are_checked_at_both_ends_of_their_range(name, accepted, refused):
+    from skyroute.cli import main as cli
+
+    for value in accepted:
+        cli.check_numbers(**{name: value})
+    for value in refused:
+        with pytest.raises(cli.UserError, match=f"--{name.replace('_', '-') if 'timeout' in name else name} must"):
+            cli.check_numbers(**{name: value})
+
+
+def test_a_speedup_out_of_range_is_refused_before_any_work(walled_map, capsys):
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--speedup", "0"]) == EXIT_BAD_INPUT
+    assert "--speedup must be > 0" in capsys.readouterr().err
+
+
+def test_a_start_needs_both_coordinates(walled_map, capsys):
+    start = ned_to_geodetic(LocalNED(-30.3, 25.3, 0), HOME)
+    for given in (["--start_lat", str(start.lat_deg)], ["--start_lon", str(start.lon_deg)]):
+        assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), *given]) == EXIT_BAD_INPUT
+        assert "give both --start_lat and --start_lon, or neither" in capsys.readouterr().err
+
+
+def test_a_start_for_a_real_vehicle_is_refused_before_connecting(walled_map, tmp_path, capsys):
+    start = ned_to_geodetic(LocalNED(-30.3, 25.3, 0), HOME)
+    code = main(["--map", str(walled_map), *latlon(35.3, 0.3), "--start_lat", str(start.lat_deg), "--start_lon",
+                 str(start.lon_deg), "--log-dir", str(tmp_path / "logs"), "--port", "9"])
+    assert code == EXIT_BAD_INPUT
+    assert "--start_lat/--start_lon need --plan-only or --sim" in capsys.readouterr().err
+    assert not (tmp_path / "logs").exists()  # refused before any log was opened
+
+
+def test_a_goal_needs_both_coordinates(walled_map, capsys):
+    goal_lat, _ = latlon(35.3, 0.3)[1], None
+    assert main(["--plan-only", "--map", str(walled_map), "--goal_lat", goal_lat]) == EXIT_BAD_INPUT
+    assert "give the goal as --goal_lat DEG --goal_lon DEG" in capsys.readouterr().err
+
+
+# walled_map's grid: posts at N/E -41..-39 and 39..41 fix it to north and east -41..41 m, 82 x 82 cells.
+@pytest.mark.parametrize("north_m, east_m, on_map", [
+    (-40.5, 0.5, True), (40.5, 0.5, True), (0.5, -40.5, True), (0.5, 40.5, True),  # the edge rows and columns
+    (-41.5, 0.5, False), (41.5, 0.5, False), (0.5, -41.5, False), (0.5, 41.5, False),  # one cell beyond
+])
+def test_goals_on_the_maps_edge_cells_plan_and_one_cell_beyond_is_off_the_map(walled_map, capsys, north_m, east_m,
+                                                                             on_map):
+    code = main(["--plan-only", "--json", "--map", str(walled_map), "--safety", "0.5", *latlon(north_m, east_m)])
+    captured = capsys.readouterr()
+    if on_map:
+        assert code == EXIT_OK, captured.err
+        assert json.loads(captured.out)["waypoints"][-1][:2] == pytest.approx([north_m, east_m], abs=0.01)
+    else:
+        assert code == EXIT_BAD_INPUT
+        assert "is off the map, which spans N -41..41 m, E -41..41 m from home" in captured.err
+
+
+def test_a_goal_beside_a_bollard_lower_than_a_metre_is_refused(tmp_path, capsys):
+    # A 0.4 m bollard: the drone flies over it, but landing 0.3 m from it is inside the 0.5 m margin on the ground.
+    bollard = tmp_path / "bollard.csv"
+    bollard.write_text("lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+                       "10,0.5,0.2,0.5,0.5,0.2\n-40,-40,0.1,0.1,0.1,0.1\n40,40,0.1,0.1,0.1,0.1\n")
+    code = main(["--plan-only", "--map", str(bollard), "--alt", "5", "--safety", "0.5", *latlon(10.7, 1.2)])
+    assert code == EXIT_BAD_INPUT
+    assert "safety margin of a building lower than the flight altitude" in capsys.readouterr().err
+    assert main(["--plan-only", "--map", str(bollard), "--alt", "5", "--safety", "0.5", *latlon(10.5, 2.5)]) == 0
+
+
+def test_an_unreadable_map_names_the_operating_systems_reason(tmp_path, capsys):
+    missing = tmp_path / "nope.csv"
+    assert main(["--plan-only", "--map", str(missing), *latlon(1, 1)]) == EXIT_BAD_INPUT
+    assert capsys.readouterr().err.strip() == f"error: cannot read map file {missing}: No such file or directory"
+
+
+def _signal_the_process_while_planning(*args, **kwargs):
+    # What the SIGTERM handler main installed does when the signal comes, called directly (no real signal, so a
+    # main that installed none fails here instead of killing the test run).
+    handler = signal.getsignal(signal.SIGTERM)
+    assert callable(handler), "main installed no SIGTERM handler"
+    handler(signal.SIGTERM, None)
+    raise AssertionError("the handler did not interrupt planning")
+
+
+def test_sigterm_while_planning_in_process_exits_130_and_restores_the_handler(walled_map, capsys, monkeypatch):
+    from skyroute.cli import main as cli
+
+    before = signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(cli, "make_plan", _signal_the_process_while_planning)
+    try:
+        code = main(["--plan-only", "-q", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3)])
+    except BaseException as exc:  # noqa: BLE001 (a KeyboardInterrupt escaping main is the failure looked for)
+        pytest.fail(f"main let {exc!r} escape")
+    captured = capsys.readouterr()
+    assert code == EXIT_INTERRUPTED and captured.err.strip() == "interrupted" and captured.out == ""
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_the_text_output_lists_the_same_waypoints_as_the_json(walled_map, capsys):
+    args = ["--plan-only", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3)]
+    assert main(args) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert main([*args, "--json"]) == 0
+    waypoints = json.loads(capsys.readouterr().out)["waypoints"]
+    rows = [line.split() for line in lines[1:-1]]
+    assert [int(row[0]) for row in rows] == list(range(len(waypoints)))
+    assert np.allclose([[float(v) for v in row[1:]] for row in rows], waypoints, atol=0.006)
+
+
+def test_a_plan_only_start_inside_the_margin_is_refused_not_snapped(walled_map, capsys):
+    # Snapping a start out of the margin is for a vehicle already there (a flight); a planned start is a choice.
+    start = ned_to_geodetic(LocalNED(18.3, 0.3, 0), HOME)  # 0.7 m south of the wall, inside the 2 m margin
+    code = main(["--plan-only", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3),
+                 "--start_lat", str(start.lat_deg), "--start_lon", str(start.lon_deg)])
+    assert code == EXIT_BAD_INPUT
+    assert "start" in (err := capsys.readouterr().err) and "within the 2 m safety margin" in err
+
+
+def test_grid3d_lands_on_the_rooftop_goal_alt_names(walled_map, capsys):
+    # The wall's top is 20 m: a goal on it at 23 m (above the 2 m margin) is the last waypoint.
+    code = main(["--plan-only", "--json", "--map", str(walled_map), "--safety", "2", "--planner", "grid3d",
+                 "--goal_alt", "23", *latlon(20.3, 10.3)])
+    assert code == EXIT_OK, capsys.readouterr().err
+    last = json.loads(capsys.readouterr().out)["waypoints"][-1]
+    assert last[:3] == pytest.approx([20.5, 10.5, 23.0], abs=0.01)
+
+
+def test_the_prm_seed_chooses_the_roadmap(walled_map, capsys):
+    def waypoints(seed: str):
+        assert main(["--plan-only", "--json", "--map", str(walled_map), "--safety", "2", "--planner", "prm",
+                     "--samples", "300", "--seed", seed, *latlon(35.3, 0.3)]) == EXIT_OK
+        return json.loads(capsys.readouterr().out)["waypoints"]
+
+    assert waypoints("1") == waypoints("1") and waypoints("1") != waypoints("2")
+
+
+def test_a_goal_on_a_map_without_a_free_cell_says_so(tmp_path, capsys):
+    covered = tmp_path / "covered.csv"  # one 30 m tower over the whole map
+    covered.write_text("lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSizeY,halfSizeZ\n"
+                       "0,0,15,20,20,15\n")
+    assert main(["--plan-only", "--map", str(covered), *latlon(1, 1)]) == EXIT_BAD_INPUT
+    assert capsys.readouterr().err.strip().endswith("; no free point on the map")
+
+
+@pytest.mark.parametrize("option", ["--timeout", "--arm-timeout", "--link-timeout"])
+def test_a_flight_timeout_given_on_the_command_line_is_read_as_a_number_and_range_checked(walled_map, capsys,
+                                                                                          option):
+    # checked before any planning or connecting, even with --plan-only: a string would not compare with a number
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), option, "0"]) == EXIT_BAD_INPUT
+    assert f"{option} must be" in one_error_line(capsys.readouterr().err)
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), option, "7.5"]) == EXIT_OK
+
+
+def test_an_unknown_planner_is_refused_by_the_parser_naming_the_choices(walled_map, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--planner", "dijkstra"])
+    assert exit_info.value.code == EXIT_BAD_INPUT  # argparse's usage error is 2, README's bad input
+    err = capsys.readouterr().err
+    assert "invalid choice: 'dijkstra'" in err and "'grid'" in err and "'voronoi'" in err
+
+
+def test_v_is_the_short_form_of_verbose(walled_map, capsys):
+    assert main(["-v", "--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3)]) == EXIT_OK
+
+
+def one_error_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+@pytest.mark.parametrize("option, value", [("--start_lat", "91"), ("--start_lon", "-181")])
+def test_a_start_out_of_range_is_refused_on_the_command_line(walled_map, capsys, option, value):
+    start = ned_to_geodetic(LocalNED(-30.3, 25.3, 0), HOME)
+    given = {"--start_lat": str(start.lat_deg), "--start_lon": str(start.lon_deg), option: value}
+    argv = ["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3)]
+    for name, text in given.items():
+        argv += [name, text]
+    assert main(argv) == EXIT_BAD_INPUT
+    assert f"{option} must be" in one_error_line(capsys.readouterr().err)
+
+
+def test_main_puts_back_the_sigterm_handler_it_found(walled_map, capsys):
+    import signal
+
+    def mine(signum, frame):  # a handler of the embedding program's
+        pass
+
+    previous = signal.signal(signal.SIGTERM, mine)
+    try:
+        assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3)]) == EXIT_OK
+        assert signal.getsignal(signal.SIGTERM) is mine
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_json_with_a_plot_and_an_export_prints_only_the_json_document(walled_map, tmp_path, capsys):
+    plot, export = tmp_path / "plan.png", tmp_path / "plan.geojson"
+    code = main(["--plan-only", "--json", "--map", str(walled_map), "--safety", "2", *latlon(35.3, 0.3),
+                 "--plot", str(plot), "--export", str(export)])
+    out = capsys.readouterr().out
+    assert code == EXIT_OK
+    assert json.loads(out)["waypoints"]  # one document: no 'plot written' or export lines around it
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and json.loads(export.read_text())["type"]

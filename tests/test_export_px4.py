@@ -1,10 +1,10 @@
-"""A ``.plan`` export flown by a real autopilot: PX4 SITL (SIH) in mission mode, from takeoff to landing at the
-goal. MAVSDK (its own C++ ``.plan`` importer) reads the file, uploads it, arms and starts the mission.
+"""A ``.plan`` export flown by a real autopilot: PX4 SITL (SIH) in mission mode, from takeoff to landing at the goal.
+MAVSDK (its own C++ ``.plan`` importer) reads the file, uploads it, arms and starts the mission.
 
-The plan comes from the command line (``--plan-only --export``) on the project's map. PX4 is found by one rule
-(``$SKYROUTE_SHARED/sitl/px4`` if ``SKYROUTE_SHARED`` is set, else ``../shared/sitl/px4`` next to the project
-root) and skipped without it; the instance is a free one (its lock file and UDP ports unused), started in its own
-process group and stopped in ``finally``. PX4 SITL runs in real time: ~1 minute.
+The plan comes from the command line (``--plan-only --export``) on the project's map. PX4 is found by the tests' one
+rule (``tests/shared.py``: ``$SKYROUTE_SHARED/sitl/px4`` if ``SKYROUTE_SHARED`` is set, else ``../shared/sitl/px4``
+next to the project root) and skipped without it; the instance is a free one (its lock file and UDP ports unused),
+started in its own process group and stopped in ``finally``. PX4 SITL runs in real time: ~1 minute.
 """
 
 from __future__ import annotations
@@ -21,14 +21,14 @@ from pathlib import Path
 
 import pytest
 
+from tests import shared
+
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("SKYROUTE_SHARED") or ROOT.parent / "shared")
-PX4 = SHARED / "sitl" / "px4"
+PX4 = shared.shared_dir() / "sitl" / "px4"
 sdk = pytest.importorskip("mavsdk.asyncio")
 
 pytestmark = [
-    pytest.mark.sitl,
-    pytest.mark.skipif(not (PX4 / "bin" / "px4").is_file(), reason=f"no PX4 SITL at {PX4}"),
+    *shared.needs_px4,
 ]
 
 LAT0, LON0 = 37.792480, -122.397450

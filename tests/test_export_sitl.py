@@ -1,13 +1,13 @@
-"""A ``.waypoints`` export flown by a real autopilot: MAVProxy's ``wp load`` puts it into ArduCopter SITL, which
-flies it in AUTO from takeoff to the goal and lands there.
+"""A ``.waypoints`` export flown by a real autopilot: MAVProxy's ``wp load`` puts it into ArduCopter SITL, which flies
+it in AUTO from takeoff to the goal and lands there.
 
-The plan comes from the command line as a user makes it (``--plan-only --export``) on the project's map. The
-SITL binary is found by one rule: ``$SKYROUTE_SHARED/sitl/arducopter`` if ``SKYROUTE_SHARED`` is set, else
-``../shared/sitl/arducopter`` next to the project root; without it (or without MAVProxy) the test skips. The SITL
-instance is a free one picked at run time (its three TCP ports free), started in its own process group and
-killed in ``finally``, as is MAVProxy. The test's own pymavlink client (on SITL's second serial port) reads the
-mission back, arms, switches to AUTO and judges the flight from GLOBAL_POSITION_INT, with the goal's lat/lon
-computed here independently of ``skyroute.frames``.
+The plan comes from the command line as a user makes it (``--plan-only --export``) on the project's map. The SITL
+binary is found by the tests' one rule (``tests/shared.py``): ``$SKYROUTE_SHARED/sitl/arducopter`` if
+``SKYROUTE_SHARED`` is set, else ``../shared/sitl/arducopter`` next to the project root; without it (or without
+MAVProxy) the test skips. The SITL instance is a free one picked at run time (its three TCP ports free), started in
+its own process group and killed in ``finally``, as is MAVProxy. The test's own pymavlink client (on SITL's second
+serial port) reads the mission back, arms, switches to AUTO and judges the flight from GLOBAL_POSITION_INT, with the
+goal's lat/lon computed here independently of ``skyroute.frames``.
 """
 
 from __future__ import annotations
@@ -24,14 +24,15 @@ from pathlib import Path
 
 import pytest
 
+from tests import shared
+
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("SKYROUTE_SHARED") or ROOT.parent / "shared")
+SHARED = shared.shared_dir()
 ARDUCOPTER = SHARED / "sitl" / "arducopter"
 MAVPROXY = shutil.which("mavproxy.py") or (shutil.which("mavproxy.py", path=str(Path(sys.executable).parent)))
 
 pytestmark = [
-    pytest.mark.sitl,
-    pytest.mark.skipif(not ARDUCOPTER.is_file(), reason=f"no ArduCopter SITL at {ARDUCOPTER}"),
+    *shared.needs_arducopter,
     pytest.mark.skipif(MAVPROXY is None, reason='no MAVProxy (pip install ".[sitl]")'),
 ]
 

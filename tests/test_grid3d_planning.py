@@ -1,6 +1,7 @@
 """grid3d_planning (height map, 3D leg checks, the grid3d planner) and sampling_planning (the PRM).
 
 Maps are 40 x 40 m, fixed by two low posts at the corners, so cell (i, j) has its centre at (i + 0.5, j + 0.5).
+Routes are judged by the tests' own collision check (tests/clearance.py), not the planners' ``colliding_legs``.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import planning_utils as pu
 from skyroute.planning import graphs as gp
 from skyroute.planning import grid3d as g3
 from skyroute.planning import sampling as sp
+from tests import clearance
 
 POSTS_40 = [[0.25, 0.25, 0.1, 0.25, 0.25, 0.1], [39.75, 39.75, 0.1, 0.25, 0.25, 0.1]]
 
@@ -165,7 +167,7 @@ def test_grid3d_climbs_over_a_low_wall_when_that_is_cheaper_than_going_round():
     assert over.cost_m == pytest.approx(55.0)
     assert over.waypoints[:, 2].max() == 15.0
     assert over.length_m < flat.length_m
-    assert gp.colliding_legs(over, LOW_WALL, 1) == []
+    assert clearance.legs_too_close(over.waypoints, LOW_WALL, 1) == []
 
 
 def test_grid3d_goes_round_a_tall_wall_at_the_grid_planners_optimal_cost():
@@ -183,7 +185,7 @@ def test_grid3d_lands_a_goal_on_a_rooftop_above_roof_plus_margin():
     result = gp.plan("grid3d", block, centre(5, 5), centre(25, 25), 5, 1, goal_alt_m=21)
     np.testing.assert_allclose(result.waypoints[-1, :3], [25.5, 25.5, 21.0])
     assert result.extra["level_step_m"] == 4.0
-    assert gp.colliding_legs(result, block, 1) == []
+    assert clearance.legs_too_close(result.waypoints, block, 1) == []
     with pytest.raises(pu.BlockedCellError):
         gp.plan("grid3d", block, centre(5, 5), centre(25, 25), 5, 1, goal_alt_m=20)
 
@@ -255,7 +257,7 @@ def test_prm_nodes_are_free_at_their_altitude_within_the_band_and_every_edge_is_
     assert len(edges) > 300
     offset = (roadmap.north_offset + 0.5, roadmap.east_offset + 0.5, 0.0)
     for u, v in edges[:: max(1, len(edges) // 100)]:
-        assert g3.legs_clear_of_boxes(np.array([nodes[u], nodes[v]]) + offset, CHICANE, 1).tolist() == [True]
+        assert clearance.legs_too_close(np.array([nodes[u], nodes[v]]) + offset, CHICANE, 1) == []
 
 
 def test_prm_reaches_a_rooftop_above_its_sampled_band_by_a_vertical_and_a_level_leg():
@@ -264,7 +266,7 @@ def test_prm_reaches_a_rooftop_above_its_sampled_band_by_a_vertical_and_a_level_
     assert set(roadmap.nodes[:, 2].tolist()) == {5.0}
     result = roadmap.plan(centre(5, 5), centre(25, 25), goal_alt_m=21)
     np.testing.assert_allclose(result.waypoints[-1, :3], [25.5, 25.5, 21.0])
-    assert g3.legs_clear_of_boxes(result.waypoints[:, :3], block, 1.0).all()
+    assert clearance.legs_too_close(result.waypoints, block, 1.0) == []
 
 
 def test_prm_with_too_few_samples_misses_the_route_and_says_what_to_try():
@@ -280,6 +282,6 @@ def test_prm_falls_back_to_the_complete_search_when_its_roadmap_misses():
     result = roadmap.plan(centre(3, 3), centre(37, 37))
     assert result.planner == "prm" and result.extra["fallback"] == "grid3d"
     np.testing.assert_allclose(result.waypoints[[0, -1], :3], [[3.5, 3.5, 5.0], [37.5, 37.5, 5.0]])
-    assert gp.colliding_legs(result, CHICANE, 1) == []
+    assert clearance.legs_too_close(result.waypoints, CHICANE, 1) == []
     direct = gp.plan("grid3d", CHICANE, centre(3, 3), centre(37, 37), 5, 1)
     assert result.cost_m == pytest.approx(direct.cost_m)

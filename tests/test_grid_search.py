@@ -350,3 +350,57 @@ def test_word_scans_stop_where_a_cell_by_cell_scan_does(seed):
         down = bits.scan_down(tables, int(r), int(c), target if 0 <= target < c else -1)
         assert up == scan_reference(padded, r, c, 1, target if target > c else -1)
         assert down == scan_reference(padded, r, c, -1, target if 0 <= target < c else -1)
+
+
+def test_the_python_a_star_refuses_ends_off_the_grid_or_blocked_like_the_compiled_search():
+    grid = np.zeros((4, 9), dtype=bool)  # not square: rows and columns must not be swapped
+    grid[1:3, 3:6] = True
+    with pytest.raises(OutsideGridError) as off:
+        python_a_star(grid, lambda a, b: 0.0, (0, 0), (4, 0))  # one row beyond the last
+    assert (off.value.which, tuple(off.value.cell)) == ("goal", (4, 0)) and "grid is 4 x 9 cells" in str(off.value)
+    with pytest.raises(OutsideGridError):
+        python_a_star(grid, lambda a, b: 0.0, (0, 9), (0, 0))  # one column beyond the last
+    with pytest.raises(BlockedCellError) as blocked:
+        python_a_star(grid, lambda a, b: 0.0, (1, 4), (0, 0))
+    assert blocked.value.which == "start" and blocked.value.nearest_free in {(0, 4), (3, 4)}
+    assert tuple(blocked.value.cell) == (1, 4) and str(blocked.value).startswith("start cell (1, 4) is inside")
+
+
+def test_a_blocked_end_on_a_map_with_no_free_cell_says_so():
+    err = BlockedCellError("goal", (1, 1), None)
+    assert str(err) == "goal cell (1, 1) is inside an obstacle or its safety margin; no free cell on the map"
+    with pytest.raises(BlockedCellError, match="no free cell on the map"):
+        python_a_star(np.ones((3, 3), dtype=bool), lambda a, b: 0.0, (0, 0), (2, 2))
+
+
+def test_the_classic_heuristic_is_the_euclidean_distance():
+    assert heuristic((1, 2), (4, 6)) == 5.0 and heuristic((4, 6), (1, 2)) == 5.0 and heuristic((3, 3), (3, 3)) == 0
+
+
+def test_no_path_errors_name_both_cells_and_the_cells_searched():
+    walled = np.zeros((5, 7), dtype=bool)
+    walled[:, 3] = True
+    with pytest.raises(NoPathError, match=r"^no path from cell \(1, 1\) to cell \(2, 5\) \(searched \d+ cells\)$"):
+        GridPlanner(walled).plan((1, 1), (2, 5))
+    with pytest.raises(NoPathError) as info:
+        python_a_star(walled, lambda a, b: 0.0, (1, 1), (2, 5))
+    # Dijkstra (h = 0) expands every cell it can reach: the 5 x 3 cells west of the wall.
+    assert str(info.value) == "no path from cell (1, 1) to cell (2, 5) (searched 15 cells)"
+
+
+def test_an_unknown_search_method_is_refused_naming_the_choices():
+    with pytest.raises(ValueError, match=r"unknown method 'bfs'; choose from \["):
+        GridPlanner(np.zeros((3, 3), dtype=bool), method="bfs")
+
+
+def test_check_cell_refuses_one_cell_beyond_each_edge_and_names_a_blocked_cell():
+    grid = np.zeros((4, 9), dtype=bool)
+    grid[2, 6] = True
+    planner = GridPlanner(grid)
+    for cell in ((4, 0), (0, 9), (-1, 0), (0, -1)):
+        with pytest.raises(OutsideGridError):
+            planner.check_cell("goal", cell)
+    with pytest.raises(BlockedCellError) as info:
+        planner.check_cell("goal", (2, 6))
+    assert (info.value.which, tuple(info.value.cell)) == ("goal", (2, 6))
+    assert planner.check_cell("start", (3, 8)) == (3, 8)

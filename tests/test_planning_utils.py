@@ -15,6 +15,7 @@ from planning_utils import (
     create_grid,
     headings_along,
     line_of_sight,
+    nearest_free_cell,
     path_length,
     prune_collinear,
     prune_path,
@@ -191,6 +192,8 @@ def test_line_of_sight_blocked_by_a_corner_the_segment_only_grazes():
     assert not line_of_sight(grid, (0, 0), (2, 2))
     assert line_of_sight(grid, (0, 0), (0, 2))
     assert not line_of_sight(grid, (0, 0), (5, 0))  # off the grid
+    assert not line_of_sight(grid, (0, 2), (3, 2)) and not line_of_sight(grid, (0, 1), (0, 3))  # one cell beyond
+    assert not line_of_sight(grid, (0, 2), (-1, 2)) and not line_of_sight(grid, (0, 1), (0, -1))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -269,6 +272,11 @@ def test_grid_map_plans_between_map_points():
     assert np.abs(plan.waypoints[:, 1]).max() >= 32
     assert plan.length_m <= plan.cost_m + 1e-9
     assert plan.stats()["waypoints_after_pruning"] == len(plan.waypoints)
+    # The raw route: adjacent cell centres (steps of 1 or sqrt 2 m) from the start's cell to the goal's.
+    assert plan.raw_path_ne[0].tolist() == [-19.5, 0.5] and plan.raw_path_ne[-1].tolist() == [20.5, 0.5]
+    steps = np.hypot(*np.diff(plan.raw_path_ne, axis=0).T)
+    assert np.isin(np.round(steps, 9), [1.0, round(math.sqrt(2), 9)]).all()
+    assert steps.sum() == pytest.approx(plan.cost_m)
 
 
 def test_start_inside_the_margin_plans_from_the_nearest_free_cell():
@@ -278,6 +286,7 @@ def test_start_inside_the_margin_plans_from_the_nearest_free_cell():
     with pytest.raises(BlockedCellError):
         grid_map.plan(start, (20.0, 0.0))
     plan = grid_map.plan(start, (20.0, 0.0), snap_start=True)
+    assert plan.raw_path_ne[0].tolist() == [-2.5, 0.5] and plan.raw_path_ne[1].tolist() == [-3.5, 0.5]
     assert plan.waypoints[0, :2].tolist() == [-2.5, 0.5]  # the centre of the start's own cell
     assert plan.waypoints[1, :2].tolist() == [-3.5, 0.5]  # the nearest free cell's centre, then on as usual
 
@@ -286,3 +295,105 @@ def test_start_inside_an_obstacle_is_never_snapped():
     boxes = np.array([[0, 0, 10, 1, 30, 10], [-40, -40, 1, 1, 1, 1], [40, 40, 1, 1, 1, 1]])
     with pytest.raises(BlockedCellError):
         GridMap.build(boxes, altitude_m=5, safety_m=2).plan((0.0, 0.0), (20.0, 0.0), snap_start=True)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Nearest free cells, against brute force over the whole grid (mutation testing found these under-tested)
+
+
+def brute_nearest_d2(free_cells: np.ndarray, cell) -> int | None:
+    return None if not len(free_cells) else int(((free_cells - np.asarray(cell)) ** 2).sum(axis=1).min())
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_nearest_free_in_map_rasterises_only_around_the_cell_and_finds_the_true_nearest(seed):
+    from skyroute.planning.cspace import grid_extent, nearest_free_in_map
+
+    rng = np.random.default_rng(500 + seed)
+    data = random_obstacles(rng, count=int(rng.integers(5, 40)), extent=float(rng.choice([20.0, 45.0])))
+    data[:, 0] *= 1.7  # a map longer north-south than east-west: rows and columns must not be swapped
+    safety = float(rng.choice([0.0, 1.0, 3.0]))
+    grid, n0, e0 = create_grid(data, 0.0, safety)
+    assert grid_extent(data)[:2] == (n0, e0)
+    free = np.argwhere(~grid)
+    for _ in range(6):
+        cell = (int(rng.integers(-3, grid.shape[0] + 3)), int(rng.integers(-3, grid.shape[1] + 3)))
+        nearest, blocked = nearest_free_in_map(data, 0.0, safety, n0, e0, grid.shape, cell)
+        inside = 0 <= cell[0] < grid.shape[0] and 0 <= cell[1] < grid.shape[1]
+        assert blocked == (not inside or bool(grid[cell])), cell
+        expected = brute_nearest_d2(free, cell)
+        if expected is None:
+            assert nearest is None
+            continue
+        assert not grid[nearest] and ((np.array(nearest) - cell) ** 2).sum() == expected, (cell, nearest)
+
+
+def test_nearest_free_in_map_of_a_map_with_no_free_cell_is_none_and_blocked():
+    from skyroute.planning.cspace import nearest_free_in_map
+
+    data = np.array([[5.0, 5.0, 5.0, 5.0, 5.0, 5.0]])  # one 10 x 10 m box covering the whole map
+    assert nearest_free_in_map(data, 0.0, 1.0, 0, 0, (10, 10), (3, 4)) == (None, True)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_snap_start_cell_is_the_nearest_free_cell_reachable_without_crossing_a_building(seed):
+    from skyroute.planning.cspace import snap_start_cell
+
+    rng = np.random.default_rng(700 + seed)
+    shape = (int(rng.integers(15, 40)), int(rng.integers(15, 40)))  # not square
+    footprint = np.zeros(shape, bool)
+    for _ in range(int(rng.integers(2, 8))):
+        i, j = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+        footprint[i : i + rng.integers(1, 4), j : j + rng.integers(1, 12)] = True
+    grid = footprint.copy()  # the margin: the footprint grown by 2 cells (a square margin is enough here)
+    for di in range(-2, 3):
+        for dj in range(-2, 3):
+            grid |= np.roll(np.roll(footprint, di, 0), dj, 1)
+    margin_cells = np.argwhere(grid & ~footprint)
+    if not len(margin_cells):
+        return
+    for k in rng.integers(0, len(margin_cells), 5):
+        cell = tuple(margin_cells[k])
+        visible = [c for c in np.argwhere(~grid) if line_of_sight(footprint, cell, c)]
+        found = snap_start_cell(grid, footprint, cell)
+        if not visible:
+            assert found is None
+            continue
+        assert found is not None and not grid[found] and line_of_sight(footprint, cell, found)
+        assert ((np.array(found) - cell) ** 2).sum() == brute_nearest_d2(np.array(visible), cell)
+    assert snap_start_cell(grid, footprint, (-1, 0)) is None and snap_start_cell(grid, footprint, (0, shape[1])) is None
+
+
+def test_nearest_free_cell_finds_free_space_far_away_on_a_long_thin_grid():
+    grid = np.ones((3, 200), bool)
+    grid[2, 190] = False  # far beyond the first windows; rows and columns differ in size
+    assert nearest_free_cell(grid, (0, 5)) == (2, 190)
+    assert nearest_free_cell(grid, (-40, 400)) == (2, 190)
+
+
+def test_the_grid_cell_limit_is_inclusive_and_the_message_gives_the_size(monkeypatch):
+    from skyroute.planning import cspace
+
+    # Corner boxes fixing the extent to north 0..2000, east 0..1000: 2 M cells at 1 m.
+    data = np.array([[0.5, 0.5, 1, 0.5, 0.5, 1], [1999.5, 999.5, 1, 0.5, 0.5, 1]])
+    monkeypatch.setattr(cspace, "MAX_GRID_CELLS", 2_000_000)
+    assert cspace.grid_extent(data) == (0, 0, 2000, 1000)
+    monkeypatch.setattr(cspace, "MAX_GRID_CELLS", 1_999_999)
+    with pytest.raises(ValueError, match=r"^the obstacles span 2000 x 1000 m: 2 M cells at 1 m, more than the 2 M"):
+        cspace.grid_extent(data)
+
+
+def test_line_of_sight_pruning_cuts_a_three_cell_corner_in_the_open():
+    from planning_utils import prune_line_of_sight
+
+    open_grid = np.zeros((5, 5), dtype=bool)
+    assert prune_line_of_sight(open_grid, np.array([[0, 0], [1, 1], [1, 2]])).tolist() == [[0, 0], [1, 2]]
+
+
+def test_inside_obstacle_is_the_footprint_at_the_flight_altitude():
+    # A 4 x 4 m box at north 20, east 10, 8 m tall; posts fix the map.
+    boxes = np.array([[20, 10, 4, 2, 2, 4], [-40, -40, 0.5, 0.5, 0.5, 0.5], [40, 40, 0.5, 0.5, 0.5, 0.5]])
+    grid_map = GridMap.build(boxes, altitude_m=5, safety_m=2)
+    assert grid_map.inside_obstacle(21.5, 11.5) and grid_map.inside_obstacle(18.5, 8.5)
+    assert not grid_map.inside_obstacle(20.0, -10.0) and not grid_map.inside_obstacle(23.0, 10.0)
+    assert not GridMap.build(boxes, altitude_m=9, safety_m=2).inside_obstacle(20.0, 10.0)  # over its 8 m top

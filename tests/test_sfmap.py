@@ -12,9 +12,12 @@ from pathlib import Path
 import pytest
 
 from skyroute import sfmap
+from tests import shared
 
-SHARED_COPY = sfmap.shared_dir() / "maps" / sfmap.SF_FILENAME
-needs_copy = pytest.mark.skipif(not SHARED_COPY.is_file(), reason="no shared copy of the SF map to serve")
+SHARED_COPY = shared.shared_dir() / "maps" / sfmap.SF_FILENAME
+needs_copy = shared.Marks([
+    pytest.mark.sf_map, pytest.mark.skipif(not SHARED_COPY.is_file(), reason="no shared copy of the SF map to serve"),
+])
 
 
 @pytest.fixture
@@ -51,9 +54,8 @@ def cache(tmp_path, monkeypatch):
     return directory
 
 
+@needs_copy
 def test_the_pinned_checksum_is_that_of_the_shared_copy():
-    if not SHARED_COPY.is_file():
-        pytest.skip("no shared copy of the SF map")
     assert hashlib.sha256(SHARED_COPY.read_bytes()).hexdigest() == sfmap.SF_SHA256
 
 

@@ -41,6 +41,15 @@ def streaming(client, target, hz: float = 20.0):
         thread.join(2)
 
 
+def _wait_report(sim, predicate, timeout_s: float = 20.0) -> dict:
+    """Wait (an event, bounded by ``timeout_s`` of wall time) until ``predicate(sim.report())``."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate(report := sim.report()):
+        assert time.monotonic() < deadline, "the sim's report never got there"
+        time.sleep(0.01)
+    return report
+
+
 def test_px4_identity_and_default_streams_after_boot(sim_start, sim_connect):
     sim = sim_start()
     c = sim_connect(sim)
@@ -117,15 +126,17 @@ def test_params_ping_and_message_intervals_in_simulated_time(sim_start, sim_conn
     assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_GPS_RAW_INT, 50_000).result == 0
     wait_ready(sim)
     since = c.mark()
-    time.sleep(0.4)
+    wait_sim(sim, 1.0)  # 1 s of the sim's time: ~20 at 20 Hz, however busy the machine
+    c.wait_for("GPS_RAW_INT", since=c.mark())  # and what it sent by then has arrived
     stamps = [m.time_usec for m in c.of_type("GPS_RAW_INT", since)]
     gaps_s = [(b - a) / 1e6 for a, b in zip(stamps, stamps[1:])]
     # Under CPU load a late loop turn coalesces what fell due meanwhile: the typical gap is the interval.
     assert len(gaps_s) >= 5 and statistics.median(gaps_s) == pytest.approx(0.05, abs=0.021), gaps_s
     assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_GPS_RAW_INT, -1).result == 0
-    time.sleep(0.1)
+    c.wait_for("HEARTBEAT", since=c.mark())  # sent after the ack: nothing sent before it is still on its way
     since = c.mark()
-    time.sleep(0.6)
+    wait_sim(sim, 1.2)  # GPS_RAW_INT's default is 8 Hz (~10 in this time), 20 Hz as asked: off means none
+    c.wait_for("HEARTBEAT", since=c.mark())  # 1 Hz, sent after that time
     assert c.of_type("GPS_RAW_INT", since) == []
     assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_GPS_RAW_INT, 0).result == 0  # default
     c.wait_for("GPS_RAW_INT", since=c.mark(), timeout_s=2)
@@ -226,12 +237,12 @@ def test_strict_offboard_rules_are_px4s_and_classic_bits_are_ignored(sim_start, 
     assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_TEMPORARILY_REJECTED
     assert any("Switching to Offboard is currently not available" in m.text for m in c.of_type("STATUSTEXT", since))
     with streaming(c, lambda: (0.0, 0.0, 5.0)):  # classic-style positive z: NED 5 m *below* ground
-        time.sleep(0.1)
+        wait_sim(sim, 0.5)
         assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == M.MAV_RESULT_ACCEPTED
-        time.sleep(0.3)
+        wait_sim(sim, 1.5)  # 1.5 s of the sim's time streaming it: a climb would be under way
         assert sim.truth()["on_ground"]  # a positive z never lifts off in strict mode
         c.setpoint_local(0.0, 0.0, 5.0, type_mask=0x1000 | 0xDF8)
-        time.sleep(0.2)
+        wait_sim(sim, 1.0)
         assert sim.truth()["on_ground"]
     texts = [m.text for m in c.of_type("STATUSTEXT")]
     assert any("0x1000" in t for t in texts)
@@ -249,7 +260,7 @@ def test_strict_offboard_loss_after_com_of_loss_t_takes_com_obl_rc_act(sim_start
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
     with streaming(c, lambda: (0.0, 0.0, -5.0)):
-        time.sleep(0.1)
+        _wait_report(sim, lambda r: r["last_setpoint_sim_time_s"] is not None)  # OFFBOARD needs setpoints first
         assert c.set_mode_px4(PX4_MAIN_OFFBOARD).result == 0
         assert c.arm().result == 0
         sim.wait_until(lambda s: s["position"]["up_m"] > 4.9, 10)
@@ -333,7 +344,7 @@ def test_ardupilot_personality(sim_start, sim_connect):
     assert c.command(M.MAV_CMD_DO_SET_MODE, 1, acm["GUIDED"]).result == 0
     c.wait_for("HEARTBEAT", lambda m: m.custom_mode == acm["GUIDED"] and m.base_mode == 89 + 128, since=c.mark())
     c.setpoint_local(10.0, 0.0, -10.0)  # ignored on the ground, as ArduCopter does
-    time.sleep(0.2)
+    wait_sim(sim, 1.0)
     assert sim.truth()["on_ground"]
     assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10).result == 0  # param7 relative (m)
     sim.wait_until(lambda s: abs(s["position"]["up_m"] - 10) < 0.1, 10)
@@ -361,7 +372,7 @@ def test_tlog_is_readable_by_pymavlink(sim_start, sim_connect, tmp_path):
     c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     c.arm()
-    time.sleep(1.1)
+    wait_sim(sim, 1.1)  # the tlog's track is 10 Hz of the sim's time: >= 10 GLOBAL_POSITION_INT
     sim.stop()
     log = mavutil.mavlink_connection(str(path))
     kinds = {}

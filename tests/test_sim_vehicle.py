@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from tests import shared
 from tests.conftest import wait_ready
 
 M = mavlink
-SF_MAP = Path("/work/shared/maps/udacity_sf_colliders.csv")
 
 
 def _takeoff_offboard(c, sim, north=0.0, east=0.0, altitude_m=5.0):
@@ -84,10 +83,10 @@ def test_gps_noise_moves_reports_not_truth(sim_start, sim_connect):
 
 
 @pytest.mark.flight
-@pytest.mark.skipif(not SF_MAP.exists(), reason="shared SF map not available")
+@shared.needs_sf_map  # the one rule (tests/shared.py), counted in the closing summary
 def test_sf_map_flight_keeps_up_with_speedup(sim_start, sim_connect):
     """3845 boxes: the per-step truth check must not slow the simulation down."""
-    sim = sim_start(map_path=SF_MAP, speedup=20.0)
+    sim = sim_start(map_path=shared.sf_map(), speedup=20.0)
     c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _takeoff_offboard(c, sim, altitude_m=120.0)  # above the tallest building (106 m)

@@ -21,10 +21,11 @@ import numpy as np
 import pytest
 
 import motion_planning as mp
-from tests.sitl_support import ROOT, ArduCopterSitl, Monitor, arducopter_binary, read_boxes, to_latlon
+from tests import shared
+from tests.exit_codes import EXIT_INTERRUPTED, EXIT_OK  # README's numbers, not the code's constants
+from tests.sitl_support import ROOT, ArduCopterSitl, Monitor, held_out_goal, read_boxes, to_latlon
 
-pytestmark = [pytest.mark.sitl, pytest.mark.skipif(arducopter_binary() is None,
-                                                   reason="ArduCopter SITL not found ($SKYROUTE_SHARED or ../shared)")]
+pytestmark = shared.needs_arducopter  # the one rule for ../shared (tests/shared.py); counted in the summary
 
 MAP = mp.DEFAULT_MAP
 LAT0, LON0, BOXES = read_boxes(MAP)
@@ -65,23 +66,24 @@ def copter():
 
 def test_a_fresh_boot_flies_then_a_second_and_third_mission_on_the_same_autopilot(copter, tmp_path, capsys):
     sitl, monitor = copter
+    goal = held_out_goal(MAP, seed=5)  # a goal no sim test flies to
     started = time.monotonic()
-    code = mp.main(mission_args(sitl, GOAL_NEAR, tmp_path))
+    code = mp.main(mission_args(sitl, goal, tmp_path))
     out, err = capsys.readouterr()
-    assert code == mp.EXIT_OK, err
+    assert code == EXIT_OK, err
     lines = out.splitlines()
     # it waited for the estimator (LOCAL_POSITION_NED only once the EKF uses GPS) with progress lines...
     assert any(line.startswith("waiting for ") and "local position estimate" in line for line in lines)
     # ... read the failsafe parameters and said what a lost link would do
     assert any("warning: ArduCopter's GCS failsafe is off (FS_GCS_ENABLE=0)" in line for line in lines)
     assert any(line.startswith("mission complete:") for line in lines)
-    assert_landed_safely_at(monitor, GOAL_NEAR, started)
+    assert_landed_safely_at(monitor, goal, started)
     # the vehicle is left in LAND: the next missions select GUIDED before arming
-    for goal in (GOAL_SHORT, HOME_GOAL):
+    for goal in (GOAL_NEAR, HOME_GOAL):
         started = time.monotonic()
         code = mp.main(mission_args(sitl, goal, tmp_path))
         out, err = capsys.readouterr()
-        assert code == mp.EXIT_OK, err
+        assert code == EXIT_OK, err
         assert_landed_safely_at(monitor, goal, started)
 
 
@@ -99,12 +101,12 @@ def test_ctrl_c_in_flight_lands_where_it_is(copter, tmp_path):
         out, err = proc.communicate(timeout=90)
     finally:
         proc.kill()
-    assert proc.returncode == mp.EXIT_INTERRUPTED, err
+    assert proc.returncode == EXIT_INTERRUPTED, err
     assert "interrupted: the vehicle was landed and disarmed first" in err
     north, east, up = monitor.landed_at()
     assert up < 0.5 and math.hypot(north - at.north_m, east - at.east_m) < 15.0  # landed where it was
     # and home again for the next test
-    assert mp.main(mission_args(sitl, HOME_GOAL, tmp_path, "-q")) == mp.EXIT_OK
+    assert mp.main(mission_args(sitl, HOME_GOAL, tmp_path, "-q")) == EXIT_OK
 
 
 def test_a_killed_client_leaves_the_vehicle_short_of_the_buildings(copter, tmp_path):
@@ -114,7 +116,7 @@ def test_a_killed_client_leaves_the_vehicle_short_of_the_buildings(copter, tmp_p
     sitl, monitor = copter
     out = io.StringIO()
     assert mp.run(**{"goal_lat": to_latlon(*GOAL_NEAR, LAT0, LON0)[0], "goal_lon": to_latlon(*GOAL_NEAR, LAT0,
-                  LON0)[1], "plan_only": True, "json_output": True, "out": out}) == mp.EXIT_OK
+                  LON0)[1], "plan_only": True, "json_output": True, "out": out}) == EXIT_OK
     wps = np.array(json.loads(out.getvalue())["waypoints"])[:, :2]
     corner, before = wps[2], wps[1]
     proc = run_client(mission_args(sitl, GOAL_NEAR, tmp_path))
@@ -166,7 +168,7 @@ def test_an_elevated_start_keeps_map_altitudes_above_the_maps_ground(tmp_path, c
                             sitl.client, "--timeout", "20", "--arm-timeout", "120", "--log-dir",
                             str(tmp_path / "logs")])
             out, err = capsys.readouterr()
-            assert code == mp.EXIT_OK, err
+            assert code == EXIT_OK, err
             lines = out.splitlines()
             assert any(line.startswith("map ground at 20.") and f"stands on a {top_m:.1f} m roof" in line
                        for line in lines)
@@ -199,5 +201,5 @@ def test_signed_link_flies_and_unsigned_commands_are_ignored(tmp_path, capsys):
             setup.close()
         code = mp.main([*mission_args(sitl, GOAL_SHORT, tmp_path), "--signing-key", passphrase])
         out, err = capsys.readouterr()
-        assert code == mp.EXIT_OK, err
+        assert code == EXIT_OK, err
         assert any(line.startswith("mission complete:") for line in out.splitlines())

@@ -104,7 +104,8 @@ def test_attitude_heading_wraps_to_positive():
 
 
 @pytest.mark.parametrize("raw, expected", [(1, vh.LandedState.ON_GROUND), (2, vh.LandedState.IN_AIR),
-                                           (4, vh.LandedState.LANDING), (0, vh.LandedState.UNDEFINED)])
+                                           (4, vh.LandedState.LANDING), (0, vh.LandedState.UNDEFINED),
+                                           (200, vh.LandedState.UNDEFINED)])  # a value MAVLink does not define
 def test_extended_sys_state(raw, expected):
     msg = roundtrip(lambda e: e.extended_sys_state_encode(0, raw))
     assert vh.telemetry_from_extended_sys_state(vh.Telemetry(), msg, 0.0).landed_state is expected
@@ -118,6 +119,14 @@ def test_sys_status_battery_and_prearm():
     msg = roundtrip(lambda e: e.sys_status_encode(0, 0, 0, 0, 65535, -1, -1, 0, 0, 0, 0, 0, 0))
     t = vh.telemetry_from_sys_status(vh.Telemetry(), msg, 0.0)
     assert math.isnan(t.battery_voltage_v) and math.isnan(t.battery_remaining_pct) and t.prearm_ok is None
+
+
+def test_sys_status_says_whether_a_proximity_sensor_or_a_rangefinder_is_present():
+    base = mavlink.MAV_SYS_STATUS_SENSOR_GPS
+    for present, ranging in ((base, False), (base | mavlink.MAV_SYS_STATUS_SENSOR_PROXIMITY, True),
+                             (base | mavlink.MAV_SYS_STATUS_SENSOR_LASER_POSITION, True)):
+        msg = roundtrip(lambda e, p=present: e.sys_status_encode(p, p, p, 0, 12600, -1, 87, 0, 0, 0, 0, 0, 0))
+        assert vh.telemetry_from_sys_status(vh.Telemetry(), msg, 0.0).range_sensors is ranging
 
 
 def test_home_position():
@@ -422,3 +431,60 @@ def test_signing_key_is_hex_or_the_sha256_of_a_passphrase():
     assert vh.signing_key("correct horse") == hashlib.sha256(b"correct horse").digest()
     with pytest.raises(ValueError):
         vh.signing_key("  ")
+
+
+# ------------------------------------------------------------------ what mutmut found unguarded in translation
+def test_update_telemetry_dispatches_each_message_and_stamps_its_receive_time():
+    t = vh.Telemetry()
+    t = vh.update_telemetry(t, roundtrip(lambda e: e.global_position_int_encode(
+        4200, 377924801, -1223974500, 25500, 10250, 100, -200, 50, 9000)), 7.25)
+    t = vh.update_telemetry(t, roundtrip(lambda e: e.local_position_ned_encode(1500, 3.0, -4.0, -12.0, 0, 0, 0)),
+                            7.5)
+    t = vh.update_telemetry(t, roundtrip(lambda e: e.extended_sys_state_encode(0, 2)), 7.75)
+    t = vh.update_telemetry(t, roundtrip(lambda e: e.attitude_encode(0, 0.1, -0.2, 0.3, 0, 0, 0)), 8.0)
+    assert t.lat_deg == pytest.approx(37.7924801, abs=1e-9) and t.global_rx_s == 7.25
+    assert t.local == LocalNED(3.0, -4.0, -12.0) and t.local_rx_s == 7.5
+    assert t.landed_state is vh.LandedState.IN_AIR and t.landed_rx_s == 7.75
+    assert (t.roll_rad, t.pitch_rad, t.heading_rad) == (pytest.approx(0.1), pytest.approx(-0.2), pytest.approx(0.3))
+
+
+def test_a_heartbeat_carries_the_system_status_and_a_gcs_is_never_an_autopilot():
+    msg = roundtrip(lambda e: e.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4,
+                                                 mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6 << 16,
+                                                 mavlink.MAV_STATE_CRITICAL))
+    assert vh.telemetry_from_heartbeat(vh.Telemetry(), msg, 0.0).system_status == mavlink.MAV_STATE_CRITICAL
+    # a ground station that fills in an autopilot field (QGroundControl says ARDUPILOTMEGA) is still a GCS
+    qgc = roundtrip(lambda e: e.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0))
+    assert not vh.is_autopilot_heartbeat(qgc)
+
+
+def test_a_generic_autopilot_without_the_custom_mode_flag_has_no_px4_mode():
+    msg = roundtrip(lambda e: e.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_GENERIC,
+                                                 mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 6 << 16, 0))
+    assert vh.telemetry_from_heartbeat(vh.Telemetry(), msg, 0.0).mode != "OFFBOARD"
+
+
+def test_unknown_satellites_are_minus_one_and_an_empty_battery_is_zero_not_unknown():
+    raw = roundtrip(lambda e: e.gps_raw_int_encode(0, 3, 377924781, -1223974503, -150, 70, 110, 5, 12640, 255))
+    assert vh.telemetry_from_gps_raw_int(vh.Telemetry(), raw, 0.0).satellites == -1
+    pre = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    empty = roundtrip(lambda e: e.sys_status_encode(pre, pre, 0, 0, 10500, -1, 0, 0, 0, 0, 0, 0, 0))
+    t = vh.telemetry_from_sys_status(vh.Telemetry(), empty, 0.0)
+    assert t.battery_remaining_pct == 0.0
+    assert t.prearm_ok is False  # the pre-arm check is present but not healthy
+
+
+def test_map_offset_extrapolates_the_local_sample_to_the_global_one_up_to_a_second_apart():
+    # at the map origin, 10 m up (AMSL 10, ground 0); local sample at (1, 2, -4) moving (2, -3, 0.5) m/s
+    def offset(local_time_s):
+        t = vh.Telemetry(lat_deg=MAP_ORIGIN.lat_deg, lon_deg=MAP_ORIGIN.lon_deg, alt_amsl_m=10.0, global_time_s=10.0,
+                         north_m=1.0, east_m=2.0, down_m=-4.0, local_v_north_mps=2.0, local_v_east_mps=-3.0,
+                         local_v_down_mps=0.5, local_time_s=local_time_s)
+        return tuple(vh.map_offset(t, MAP_ORIGIN, ground_amsl_m=0.0))
+
+    # map (0, 0, -10) = local extrapolated by dt = global - local seconds + offset
+    for dt in (0.5, -0.5, 1.0):
+        expected = (0 - (1 + 2 * dt), 0 - (2 - 3 * dt), -10 - (-4 + 0.5 * dt))
+        assert offset(10.0 - dt) == pytest.approx(expected, abs=1e-6), dt
+    for local_time_s in (8.5, 11.5, math.nan):  # more than a second apart (or unknown): not extrapolated
+        assert offset(local_time_s) == pytest.approx((-1.0, -2.0, -6.0), abs=1e-6), local_time_s

@@ -466,12 +466,16 @@ def test_px4_prepare_flight_streams_setpoints_before_the_mode_switch(fake, conne
     first_mode = ap.received.index(mode_cmd)
     assert len([m for m in ap.received[:first_mode] if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]) >= 5
     v.goto_local(10.0, -5.0, -20.0, yaw_rad=1.0)
-    start = time.monotonic()
-    time.sleep(1.0)
-    recent = [m for m, at in zip(list(ap.received), list(ap.received_at), strict=True)
-              if at >= start and m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
-    assert len(recent) >= 10  # >= 10 Hz
-    sp = recent[-1]
+    first = len(ap.received)
+
+    def recent():
+        return [m for m in list(ap.received)[first:] if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+
+    assert wait_until(lambda: len(recent()) >= 11, 10.0)
+    # >= 10 Hz by the client's own send stamps (time_boot_ms), the typical gap: a busy machine delays a few
+    stamps_ms = [m.time_boot_ms for m in recent()]
+    assert sorted(b - a for a, b in zip(stamps_ms, stamps_ms[1:]))[len(stamps_ms) // 2 - 1] <= 100
+    sp = recent()[-1]
     assert (sp.x, sp.y, sp.z, sp.yaw) == (10.0, -5.0, -20.0, pytest.approx(1.0))
     assert sp.coordinate_frame == mavlink.MAV_FRAME_LOCAL_NED and sp.type_mask == vh.TYPE_MASK_POSITION_YAW
     v.land()
@@ -488,12 +492,19 @@ def test_velocity_feed_forward_is_sent_then_dropped_when_not_renewed(fake, conne
     v.wait_for(lambda t: t.has_local, 2.0, "local position")
     v.prepare_flight()
     v.goto_local(10.0, -5.0, -20.0, yaw_rad=1.0, velocity_ned=(3.0, 4.0, -1.0))
-    time.sleep(0.15)
-    sp = ap.of_type("SET_POSITION_TARGET_LOCAL_NED")[-1]
+
+    def new_target():
+        return [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == 10.0]
+
+    assert wait_until(lambda: new_target(), 5.0)
+    sp = new_target()[0]  # the first send after goto_local: its velocity is fresh
+    first_ms = sp.time_boot_ms
     assert sp.type_mask == vh.TYPE_MASK_POSITION_VELOCITY_YAW
     assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (10.0, -5.0, -20.0, 3.0, 4.0, -1.0)
-    time.sleep(0.5)  # a stalled client: the re-sent setpoint keeps the position, loses the velocity
-    sp = ap.of_type("SET_POSITION_TARGET_LOCAL_NED")[-1]
+    # a stalled client: a setpoint the client sent (by its own stamp) more than the 0.3 s after that first one
+    # keeps the position, loses the velocity
+    assert wait_until(lambda: new_target()[-1].time_boot_ms > first_ms + 350, 5.0)
+    sp = new_target()[-1]
     assert sp.type_mask == vh.TYPE_MASK_POSITION_YAW
     assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (10.0, -5.0, -20.0, 0.0, 0.0, 0.0)
 

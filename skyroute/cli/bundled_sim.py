@@ -18,6 +18,14 @@ log = logging.getLogger("motion_planning")
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
 
+#: Above this speed-up the bundled sim multiplies its link-loss timeouts by it (``--scale-timeouts``): the client
+#: paces heartbeats (1 Hz) and setpoints on the wall clock, the autopilot times them on its own, and past 5x a
+#: busy machine's pause of a fraction of a second is over COM_OF_LOSS_T (1 s) of simulated time. Up to 5x the stock
+#: values stay, so the flight is the one the real parameters give (a scaled COM_OF_LOSS_T rightly makes the
+#: client's last-command bound more cautious: the demo took 94 s instead of 77 s at 5x).
+SCALE_TIMEOUTS_ABOVE = 5.0
+
+
 class BundledSim:
     """The project's simulator (``python -m sim``) as a child process on a free loopback port.
 
@@ -43,8 +51,8 @@ class BundledSim:
             self.port = probe.getsockname()[1]
         cmd = [sys.executable, "-m", "sim", "--map", str(self.map_path), "--port", str(self.port),
                "--speedup", f"{self.speedup:g}", "--strict", "--origin", "boot", "--report", str(self.report_path)]
-        if self.speedup != 1.0:  # as PX4 SITL's startup script does for PX4_SIM_SPEED_FACTOR: our 1 Hz heartbeat
-            cmd.append("--scale-timeouts")  # and setpoints are paced on the wall clock, its link timeouts on its own
+        if self.speedup > SCALE_TIMEOUTS_ABOVE:  # as PX4 SITL's startup script does for PX4_SIM_SPEED_FACTOR
+            cmd.append("--scale-timeouts")
         if self.start is not None:
             cmd += ["--start", f"{self.start.lat_deg:.8f},{self.start.lon_deg:.8f}"]
         log.info("starting the sim: %s", " ".join(cmd))

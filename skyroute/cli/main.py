@@ -26,6 +26,7 @@ from pathlib import Path
 
 from skyroute.cli.bundled_sim import BundledSim, sim_report_summary
 from skyroute.cli.exits import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, UserError
+from skyroute.cli.exploring import run_exploration
 from skyroute.cli.flying import fly, make_log_dir
 from skyroute.cli.setting import check_endpoint, load_setting, make_plan, plan_document, print_plan, save_plot
 from skyroute.cli.view_export import check_view_export, write_exports
@@ -112,6 +113,9 @@ def run(
     export: Sequence[str] | None = None,
     no_replan: bool = False,
     sim_map: str | Path | None = None,
+    explore: float | None = None,
+    explore_time: float | None = None,
+    save_map: str | None = None,
     out=None,
 ) -> int:
     """Plan (and, unless ``plan_only``, fly) one mission; returns the process exit code.
@@ -119,6 +123,8 @@ def run(
     Raises :class:`UserError` for problems the user can fix; :func:`main` prints those.
     """
     out = out or sys.stdout
+    if explore is not None or explore_time is not None or save_map is not None:
+        return run_exploration(locals())
     if goal_lat is None or goal_lon is None:
         raise UserError("give the goal as --goal_lat DEG --goal_lon DEG")
     if (start_lat is None) != (start_lon is None):
@@ -247,6 +253,13 @@ def build_parser() -> argparse.ArgumentParser:
     link.add_argument("--no-replan", dest="no_replan", action="store_true",
                       help="do not replan in flight round obstacles the autopilot's sensor shows (default: replan "
                       "whenever it streams OBSTACLE_DISTANCE or proximity DISTANCE_SENSOR data)")
+    explore = parser.add_argument_group("exploration (no goal; see skyroute/cli/exploring.py)")
+    explore.add_argument("--explore", type=float, metavar="RADIUS_M",
+                         help="explore the area within RADIUS_M of the start (frontiers, targets), fly home, land")
+    explore.add_argument("--explore-time", dest="explore_time", type=float, metavar="S",
+                         help="exploration time budget in the autopilot's seconds from takeoff (default: 3600)")
+    explore.add_argument("--save-map", dest="save_map", metavar="OUT.csv",
+                         help="after exploring, write the known and the discovered obstacles as a colliders.csv")
     output = parser.add_argument_group("output")
     output.add_argument("--plan-only", dest="plan_only", action="store_true", help="plan and print; no drone")
     output.add_argument("--json", dest="json_output", action="store_true", help="print the plan as one JSON object")

@@ -259,3 +259,56 @@ def save_planner_gallery(
     finally:
         plt.close(fig)
     return Path(path)
+
+
+def save_exploration_figure(path, *, known: np.ndarray, hits: np.ndarray, frontiers: np.ndarray, disk: np.ndarray,
+                            north_offset: float, east_offset: float, targets: np.ndarray | None = None,
+                            track_ne: np.ndarray | None = None, start_ne=(0.0, 0.0), radius_m: float = 0.0,
+                            truth: np.ndarray | None = None, title: str | None = None) -> Path:
+    """An exploration: the known area (pale green, seen free), observed obstacle cells (dark red), the frontiers
+    left (orange), the explored disk's edge, the targets ``(K, 3)`` ``[north_m, east_m, collected]`` (stars: green
+    collected, red not), the flown track and, for a test city, the true boxes ``truth`` (grey outlines).
+    Grids ``[north_idx, east_idx]`` with cell ``(0, 0)``'s south-west corner at ``(north_offset, east_offset)``."""
+    n, m = known.shape
+    extent = (east_offset, east_offset + m, north_offset, north_offset + n)
+    image = np.ones((n, m, 4))
+    image[..., 3] = 0.0
+    image[known & ~hits] = (0.55, 0.85, 0.55, 0.6)
+    image[~known & disk] = (0.85, 0.85, 0.85, 0.5)
+    image[hits] = (0.55, 0.05, 0.05, 1.0)
+    image[frontiers] = (1.0, 0.55, 0.0, 1.0)
+    fig, ax = plt.subplots(figsize=(9, 9), dpi=110)
+    try:
+        if truth is not None and len(truth):
+            boxes = np.asarray(truth, float)
+            polys = [[(e - de, nn - dn), (e + de, nn - dn), (e + de, nn + dn), (e - de, nn + dn)]
+                     for nn, e, _, dn, de, _ in boxes]
+            ax.add_collection(PolyCollection(polys, facecolors="none", edgecolors="0.4", linewidths=0.6,
+                                             label="true buildings", zorder=1))
+        ax.imshow(image, origin="lower", extent=extent, interpolation="nearest", zorder=2)
+        ax.add_patch(matplotlib.patches.Circle((start_ne[1], start_ne[0]), radius_m, fill=False, color="tab:blue",
+                                               linestyle="--", linewidth=1.0, label="explored area", zorder=3))
+        if track_ne is not None and len(track_ne):
+            draw_track(ax, track_ne)
+        if targets is not None and len(targets):
+            t = np.asarray(targets, float)
+            done = t[:, 2] > 0
+            ax.plot(t[done, 1], t[done, 0], "*", color="tab:green", markersize=14, label="target collected", zorder=5)
+            ax.plot(t[~done, 1], t[~done, 0], "*", color="tab:red", markersize=14, label="target not collected",
+                    zorder=5)
+        ax.plot([start_ne[1]], [start_ne[0]], "o", color="tab:blue", label="home", zorder=5)
+        ax.plot([], [], "s", color=(0.55, 0.85, 0.55), label="seen free")
+        ax.plot([], [], "s", color=(0.55, 0.05, 0.05), label="observed obstacle")
+        ax.plot([], [], "s", color=(1.0, 0.55, 0.0), label="frontier left")
+        ax.set_xlim(start_ne[1] - radius_m - 35, start_ne[1] + radius_m + 35)
+        ax.set_ylim(start_ne[0] - radius_m - 35, start_ne[0] + radius_m + 35)
+        ax.set_aspect("equal")
+        ax.set_xlabel("east (m)")
+        ax.set_ylabel("north (m)")
+        ax.legend(loc="upper right", fontsize=8)
+        ax.set_title(title or f"exploration: {100 * (known & disk).sum() / max(disk.sum(), 1):.1f} % of the area known")
+        fig.tight_layout()
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
+    return Path(path)

@@ -1,0 +1,379 @@
+"""Write docs/mutation-report.md from the last ``mutmut run``: every surviving mutant with the reason it is left.
+
+    mutmut run --max-children 2            # see tests/README.md
+    python docs/make_mutation_report.py     # from the project root
+
+Each survivor gets the first reason below whose rule matches its diff; a survivor no rule explains is listed
+under "not yet reviewed" with its diff, so the report never hides one. The rules were written after reading the
+survivors one by one; each names why the mutant is equivalent or not worth a test.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STRING = re.compile(r'f?"(?:[^"\\]|\\.)*"|f?\'(?:[^\'\\]|\\.)*\'')
+
+
+@dataclass(frozen=True)
+class Mutant:
+    name: str  # module.x_function__mutmut_N
+    minus: tuple[str, ...]  # the original lines the mutant changes, stripped
+    plus: tuple[str, ...]  # the mutated lines, stripped
+
+    @property
+    def function(self) -> str:
+        return re.sub(r"__mutmut_\d+$", "", self.name)
+
+    @property
+    def old(self) -> str:
+        return " ".join(self.minus)
+
+    @property
+    def new(self) -> str:
+        return " ".join(self.plus)
+
+
+def _flying_half() -> set[str]:
+    """The lines of ``run`` that only a flight executes (from ``if not plan_only:`` to the plan-only start), in
+    the source the last run mutated (``mutants/`` keeps it as ``x_run__mutmut_orig``) and in today's source."""
+    texts = [(ROOT / "skyroute" / "cli" / "main.py").read_text()]
+    mutated = ROOT / "mutants" / "skyroute" / "cli" / "main.py"
+    if mutated.is_file():
+        text = mutated.read_text()
+        texts.append(text[text.index("def x_run__mutmut_orig("):])
+    lines = set()
+    for text in texts:
+        block = text[text.index("    if not plan_only:\n"):text.index("    start_ne = (0.0, 0.0)\n")]
+        lines |= {line.strip() for line in block.splitlines() if line.strip()}
+    return lines
+
+
+FLYING_HALF = _flying_half()
+
+
+def only_strings_differ(m: Mutant) -> bool:
+    return STRING.sub("S", m.old) == STRING.sub("S", m.new)
+
+
+def reworded(m: Mutant) -> bool:
+    """Strings only, each re-cased or wrapped in XX (what mutmut does to text)."""
+    if not only_strings_differ(m):
+        return False
+    pairs = zip(STRING.findall(m.old), STRING.findall(m.new))
+    return all(b in (a, a.upper(), a.lower()) or b.replace("XX", "") == a for a, b in pairs)
+
+
+def help_display(m: Mutant) -> bool:
+    return m.function.endswith("x_build_parser") and (
+        reworded(m) or bool(re.search(r"\b(help|metavar|description|prog)=None\b", m.new))
+        or "add_argument_group" in m.old
+        or (m.old.replace(" ", "").count("help=") == 1 and "help=" not in m.new.replace(" ", ""))
+        or bool(re.search(r'\bmetavar="[^"]*"', m.old) and not re.search(r'\bmetavar=', m.new))
+        or "formatter_class" in m.old
+        or bool(re.match(r"(prog|description)=", m.old))
+    )
+
+
+def any_of(*patterns: str):
+    return lambda m: any(re.search(p, m.old) for p in patterns)
+
+
+#: Survivors of the last run checked by hand since: the mutation applied to today's code fails the test named.
+KILLED_SINCE = {
+    "skyroute.cli.main.x_build_parser__mutmut_371": "test_v_is_the_short_form_of_verbose",
+    **{f"skyroute.cli.main.x_run__mutmut_{n}": "test_a_start_out_of_range_is_refused_on_the_command_line"
+       for n in (35, 36, 49, 50)},
+    **{f"skyroute.cli.main.x_run__mutmut_{n}": "test_a_flight_timeout_given_on_the_command_line_is_read_as_a_"
+       "number_and_range_checked" for n in (45, 59)},
+    "skyroute.cli.main.x_main__mutmut_45": "test_main_puts_back_the_sigterm_handler_it_found",
+    **{f"skyroute.cli.main.x_run__mutmut_{n}": "test_json_with_a_plot_and_an_export_prints_only_the_json_document"
+       for n in (290, 298, 302, 304)},
+    "skyroute.cli.setting.x_check_endpoint__mutmut_51": "test_a_start_inside_the_margin_leads_out_and_lands_at_"
+    "the_goal (a flight, outside mutmut's fast selection)",
+}
+
+#: Real gaps the last run found and this report leaves open, each with why it is left.
+LEFT_OPEN = {
+    "skyroute.cli.main.x_run__mutmut_240": "the old `run()` skipped a goal check with --goal_alt; the code has "
+    "changed since (the check is now `on_map_only=goal_alt is not None`) and this mutant no longer exists",
+    "skyroute.cli.main.x_run__mutmut_265": "--samples is not passed to the planner by this mutant; no test "
+    "compares two sample counts (the PRM's roadmap is checked by --seed)",
+    "skyroute.cli.setting.x_make_plan__mutmut_51": "the same: --samples reaches the PRM unchecked",
+    "skyroute.cli.setting.x_check_endpoint__mutmut_29": "a start judged by the goal's landing rules (a 0.4 m "
+    "bollard beside it); the plan-only tests start on open ground",
+    **{f"skyroute.flight.mission.xǁMissionǁ_trim__mutmut_{n}": "the final trim over the goal (which speed counts "
+       "as slow, the east error): the fake vehicle stops dead, so the trim's thresholds are not exercised; the "
+       "sim flights' 1 m landing bound is what guards it" for n in (4, 6, 8, 16)},
+    **{f"skyroute.flight.mission.xǁMissionǁ_arm_failed__mutmut_{n}": "the events recorded in the mission's "
+       "history when arming fails (the outcome and the error are checked, not the event names)" for n in (1, 2)},
+    **{f"skyroute.flight.mission.xǁMissionǁ_abandon__mutmut_{n}": "what `_abandon` passes on (the reason text to "
+       "`_make_safe`, the error to `_finish`): its callers' tests check the state and the raised error"
+       for n in (2, 3)},
+}
+
+
+REASONS: list[tuple[str, str, object]] = [
+    ("killed-since", "Killed since the run: a test added after it fails on this mutation applied to today's code "
+     "(checked by hand): " + "; ".join(sorted({f"`{t}`" for t in KILLED_SINCE.values()})) + ".",
+     lambda m: m.name in KILLED_SINCE),
+    ("left-open", "Real gaps left open, each for its own reason: " + "; ".join(
+        f"{name.rsplit('.', 1)[1]}: {why}" for name, why in LEFT_OPEN.items()) + ".",
+     lambda m: m.name in LEFT_OPEN),
+
+    ("flying", "The flying half of `run()` (connect, log, fly, the bundled sim): only flights execute it, and the "
+     "flight tests are outside this fast selection. Left for the flight side, with `skyroute/cli/flying.py`.",
+     lambda m: m.function.endswith("cli.main.x_run") and all(line in FLYING_HALF for line in m.minus)),
+    ("help", "`--help` text and layout (wording, metavars, group titles, the program name): not behaviour; "
+     "`test_help_shows_defaults` checks the help shows the defaults, README's table is checked against the parser.",
+     help_display),
+    ("dest", "Equivalent: argparse derives the same `dest` from the option's long name (`--arm-timeout` -> "
+     "`arm_timeout`).", lambda m: m.function.endswith("x_build_parser")
+     and ("dest=None" in m.new or ("dest=" in m.old and "dest=" not in m.new and "--" in m.new))),
+    ("log-text", "Log text and arguments (the flight's navigation log, read by people): the tests judge what the "
+     "vehicle did and the lines the user is shown, not the wording of log records.",
+     lambda m: all(re.match(r"log\.(debug|info|warning|error|exception)\(", line) for line in m.minus + m.plus)
+     and bool(m.minus)),
+    ("interrupt-text", "Equivalent: the text of the KeyboardInterrupt raised for SIGTERM is never shown; `main` "
+     "catches it and prints its own one line.", lambda m: m.function.endswith("cli.main.x__interrupt")),
+    ("wording", "Message wording: the mutant re-cases a message or wraps it in `XX`; the tests check the fragment "
+     "that carries the meaning (the option, the number, the place), not every letter.", reworded),
+    ("dtype", "Equivalent: a `dtype` dropped or `None` where the array already has that type (maps and grids are "
+     "float64 and bool throughout; the compiled kernels would refuse anything else at their first call).",
+     lambda m: bool(re.search(r"dtype=(np\.\w+|bool)|np\.(bool_|int64|float64)\)", m.old))
+     and bool(re.search(r"dtype=None|\(\s*\)|, \)|None\)", m.new)) and "loadtxt" not in m.old),
+    ("window", "Equivalent: the nearest-free-cell searches look in square windows of doubling size; the first "
+     "size, the growth and the stopping test (`<` or `<=` the window's reach) change how many cells are looked "
+     "at, not which distance is found (brute-force tests on random, non-square maps check the answer).",
+     lambda m: m.function.split(".")[-1] in ("x_nearest_free_cell", "x_nearest_free_in_map", "x_snap_start_cell")
+     and bool(re.search(r"\bhalf\b|i0|j0|i1|j1|whole_grid|kind=", m.old))),
+    ("fastpath", "Equivalent: the NumPy fast path of the map reader; when it fails or is skipped the line-by-line "
+     "reader parses the same rows (`test_fast_and_line_by_line_readers_agree`); only speed differs.",
+     lambda m: m.function.endswith("maps.x__parse_rows") and ("loadtxt" in m.old or "obstacles" in m.old)),
+    ("timing", "A duration (`search_ms`, `build_ms`): measured, never asserted (timing is for `bench/`).",
+     any_of(r"perf_counter", r"search_ms", r"build_ms")),
+    ("rounding", "Display precision of the summary and the JSON (3 and 4 decimals, i.e. 1 mm or 0.1 mm): not "
+     "asserted, not worth a test.", lambda m: bool(re.search(r"round\(", m.old))),
+    ("warmup", "Equivalent: `_load` compiles the kernels on a tiny grid; which tiny grid does not matter.",
+     lambda m: m.function.endswith("search.x__load")),
+    ("stdout", "Equivalent through the command line: `print_plan` and the compile notice write to the stream "
+     "given, which the CLI sets to `sys.stdout`/`sys.stderr` anyway (the default `print` target); `flush` on "
+     "stderr, which is line-buffered, changes nothing; `main` always passes `enabled`.",
+     lambda m: m.function.split(".")[-1] in ("x_print_plan", "x_announce_first_compile")
+     and not re.search(r"print\(\s*(None|file=)", m.new.replace("print(plan_summary", "x"))),
+    ("picture", "What the `--plot` picture shows (which height map is drawn under a 3D route): the test checks a "
+     "PNG is written; the figure's content is checked by eye in `docs/` (not worth a pixel test).",
+     lambda m: m.function.endswith("cli.setting.x_save_plot")),
+    ("logging", "Log format and level: a plan-only run logs nothing at INFO (the verbose log is the flight's), so "
+     "`-v` changes nothing here; the flight tests read it.",
+     lambda m: m.function.endswith("cli.main.x_main") and ("format=" in m.old or "logging.INFO" in m.old)),
+    ("subprocess", "Covered by a test mutmut cannot attribute: `test_a_reader_that_leaves_early_gets_exit_1_and_no_"
+     "traceback` runs the command line in a child process (a closed pipe cannot be faked in-process without "
+     "redirecting pytest's own stdout), and mutmut only runs the tests it saw call the function in its process.",
+     lambda m: m.function.endswith("cli.main.x_main") and ("dup2" in m.old or "devnull" in m.old)),
+    ("altitude0", "Equivalent to far below the tests' 1 cm: the altitude (0 m -> 1 m) of a point or home used only "
+     "for its latitude and longitude or its north and east (a metre of height moves them by ~1e-7 m).",
+     lambda m: bool(re.search(r"(Geodetic|LocalNED)\(.*0\.0\)", m.old)) and bool(re.search(r"1\.0\)|, \)", m.new))),
+    ("prm-message", "Unreachable: `make_plan`'s PRM messages. The PRM falls back to the complete grid3d search, "
+     "which always finds a route (it can climb over everything), so no `NoPathError` comes out of `prm`.",
+     lambda m: m.function.endswith("cli.setting.x_make_plan") and bool(re.search(r'prm|why', m.old))),
+    ("falsy", "Equivalent: `None` for a flag that is only tested for truth (`snap_start`, `allow_margin`, "
+     "`on_map_only`), or for a keyword whose default is the same.",
+     lambda m: bool(re.search(r"(snap_start|allow_margin|on_map_only)=None", m.new))
+     or bool(re.search(r"(snap_start=snap_start|allow_margin=snap_start)", m.old)
+             and not re.search(r"(snap_start|allow_margin)=", m.new))),
+    ("buffer", "Equivalent: the size of the supercover's scratch buffer (a larger one is trimmed to the walk's "
+     "count) or of the one-cell grid the walk ignores when it records cells.",
+     lambda m: m.function.endswith("pruning.x_supercover") and ("np.empty" in m.old or "np.zeros" in m.old)),
+    ("repeat", "Equivalent on planner output: `_max_offset`'s guard for a zero-length chord; pruned paths never "
+     "repeat a point, so the chord is never zero.", lambda m: m.function.endswith("pruning.x__max_offset")),
+    ("cli-defaults", "Equivalent through the command line: the keyword defaults of `run()` and `make_plan()`; `main` "
+     "passes every keyword from the parser, whose defaults README's option table is checked against.",
+     lambda m: m.function.split(".")[-1] in ("x_run", "x_make_plan")
+     and bool(re.match(r"\w+: (float|int|bool) = ", m.old))),
+    ("message-detail", "Left: the detail a mutant blanks or re-points in a one-line error or progress line (which "
+     "place is described, the hint, the quoted path or cell, the numbers of a not-reached waypoint). The tests "
+     "check the fragment a user acts on (the option, the kind of problem, the line number); one test per "
+     "blanked detail is not worth its upkeep.",
+     lambda m: (bool(re.search(r"\b(raise|UserError|Error|_say|where =|hint =|got =)\b", m.old))
+                and bool(re.search(r"\(None[,)]|= None$|\(None\)|, None\)|\bNone,", m.new))
+                or m.function.endswith("ǁ_not_reached")
+                or (m.function.endswith("x_make_plan") and "where = setting.describe" in m.old)
+                or (m.function.endswith("x_check_endpoint") and "check_cell(" in m.old))),
+    ("statistics", "Search statistics of a successful search (cells expanded, heap entries, the plan's "
+     "start/goal cells kept for the JSON's diagnostics): reported, never asserted; a no-path error quotes its "
+     "count and is checked.",
+     lambda m: bool(re.search(r"GridPath\(|extra=\{", m.old))),
+    ("float-edge", "Equivalent in practice: `<` against `<=` on a floating-point distance (a point exactly on a "
+     "box's face, a frame jump of exactly the threshold); no planned or flown position lands on the edge exactly.",
+     lambda m: m.function.split(".")[-1] in ("xǁGridMapǁinside_obstacle", "xǁMissionǁ_retie")
+     and m.old.replace("<", "<=").replace(">", ">=") != m.old and m.new.count("=") > m.old.count("=")),
+    ("in-grid", "Equivalent: the bounds check of a helper whose callers pass only cells already on the grid "
+     "(off-grid starts and goals are refused first, each with its own test), or the shape of an output buffer "
+     "the kernel never fills.",
+     lambda m: m.function.split(".")[-1] in ("x_snap_start_cell", "x_line_of_sight")),
+    ("edge-start", "Left: `is_blocked_inside` decides whether a start inside the margin is snapped out; these "
+     "mutants change its answer only on the grid's outermost rows and columns or off it (off-grid starts are "
+     "refused before it is asked). A margin start on the map's outermost cells is not worth its own test.",
+     lambda m: m.function.endswith("xǁGridPlannerǁis_blocked_inside")),
+    ("first-read", "Equivalent: how much of the file `read_home` reads to find line 1 (64 KiB, more, or all) and "
+     "how many times it splits; only the first line is used.",
+     lambda m: m.function.endswith("maps.x_read_home") and ("f.read(" in m.old or "split(" in m.old)),
+    ("text-edges", "Equivalent: `float()` ignores the carriage return `_strip_cr` leaves, `rfind` from None is "
+     "from 0, NumPy reads any negative reshape size as 'infer', and a file with no newline at all fails at line 2 "
+     "(no header) whichever part of it is taken for line 1.",
+     lambda m: m.function.split(".")[-1] in ("x__strip_cr",) or "rfind(b\"\\n\", None" in m.new
+     or "reshape(-2" in m.new or (m.function.endswith("x_parse_colliders") and "first_end < 0) and False" in m.new)),
+    ("dispatch", "Equivalent: which A* runs (the compiled kernel or the Python one, given the same heuristic they "
+     "find the same optimal paths, as tests check), the start's entry in the best-cost table (never looked up: the "
+     "start is never reached again), and pymavlink's PX4 mode names (`interpret_px4_mode` reads only custom_mode).",
+     lambda m: (m.function.endswith("search.x_a_star") and "h is None" in m.old)
+     or (m.function.endswith("x_python_a_star") and "best = {start" in m.old)
+     or "interpret_px4_mode(None" in m.new),
+    ("vehicle-api", "Equivalent: every vehicle the mission drives (the MAVLink one, the tests' fakes) has "
+     "`shift_setpoint`, so getattr's default is never used.",
+     lambda m: "getattr(self.vehicle" in m.old),
+    ("horizontal", "Equivalent: the altitude of a point used only for its north and east (geodetic_to_ned's "
+     "horizontal part does not depend on it to far below a millimetre).",
+     lambda m: m.function.endswith("x_map_position") and "map_origin.alt_m" in m.old),
+    ("superset", "Equivalent: the window prefilter of the rasteriser only decides which boxes go on to the exact "
+     "per-cell test; `>=` for `>` or `|` for `&` lets more boxes through (a superset), and the per-cell test "
+     "decides the same cells (rasteriser tests against a brute-force reference).",
+     lambda m: m.function.endswith("cspace.x_rasterise_window") and "near" in m.old),
+    ("short-paths", "Equivalent: the early return for paths of two points or fewer (`<` for `<=`, `>=` for `>`): "
+     "the general code gives the same answer for them (nothing to prune; the length of one point is 0).",
+     lambda m: m.function.split(".")[-1] in ("x_prune_collinear", "x_prune_line_of_sight", "x_path_length")
+     and bool(re.search(r"len\((pts|cells)\)", m.old))),
+    ("tolerance", "Equivalent: pruning's collinearity tolerance at its edge (`>=` for `>` against 1e-9 m) and the "
+     "1e-9 m passed explicitly where the default (1e-6 m) also keeps every corner of a grid route (corners are "
+     "at least 0.5 m off the chord).",
+     lambda m: (m.function.endswith("x_prune_collinear") and "tolerance_m" in m.old)
+     or (m.function.endswith("x_prune_path") and "tolerance_m=1e-9" in m.old)),
+    ("m-cells", "Display rounding: a size in millions of cells divided by 1000001 instead of 1e6 rounds to the same "
+     "whole number for every size the messages can show.", lambda m: "/ 1e6" in m.old and "1000001.0" in m.new),
+    ("unused-field", "Equivalent: `GridMap.safety_m` is kept for callers that want it; planning uses the grid "
+     "built with the margin, and the JSON's `safety_m` comes from the setting (checked).",
+     lambda m: m.function.endswith("xǁGridMapǁbuild")),
+    ("warmup2", "Equivalent: `_load(None)` compiles nothing up front; the kernel compiles at its first call "
+     "instead (only when the compile notice appears differs, and that has its own subprocess test).",
+     lambda m: m.function.endswith("xǁGridPlannerǁ__init__") and "_load(" in m.old),
+    ("signal-restore", "Equivalent on the main thread: `restore` is the previous SIGTERM handler there; off it "
+     "(`main` called from a thread) no handler is installed and `signal.signal` would refuse one anyway.",
+     lambda m: m.function.endswith("cli.main.x_main") and "restore = None" in m.old),
+    ("find-bounds", "Equivalent: `str.find` gives -1 or, by then, an index of at least 1 (line 1 is not empty: "
+     "it was refused already), so `< 0`, `<= 0` and `< 1` agree; an empty line 2 is no header whichever way it is "
+     "cut; `count` from None counts from 0.",
+     lambda m: (m.function.endswith("maps.x_parse_colliders") and bool(re.search(r"(first|second)_end", m.old)))
+     or (m.function.endswith("maps.x__decode") and "count(b" in m.new and ", None," in m.new)),
+    ("print-target", "Equivalent through the command line or covered elsewhere: `print_plan(plan, None)` prints to "
+     "stdout, the CLI's `out` anyway; the plot line's wording and stream (the plot file itself is checked).",
+     lambda m: m.function.endswith("cli.main.x_run") and ("print_plan(plan, out)" in m.old
+                                                          or 'print(f"plot written' in m.old)),
+    ("more-wording", "Message wording inside an f-string expression (`' OR '.join`): a re-cased word.",
+     lambda m: m.new.lower() == m.old.lower() and m.new != m.old),
+    ("more-defaults", "Equivalent through the command line: `load_setting`'s `map_given` default; the CLI always "
+     "says whether `--map` was given.",
+     lambda m: m.function.endswith("x_load_setting") and "map_given: bool = True" in m.old),
+    ("more-messages", "Left, as message-detail above: which end is named, the place described, the hint.",
+     lambda m: (bool(re.search(r'where = setting\.describe|hint = ("|f")', m.old)) and "None" in m.new)
+     or "check_endpoint(setting, None" in m.new),
+    ("flat3d", "Equivalent for a flat route: the grid planner's waypoints share one altitude, so including it in "
+     "the length or the headings changes nothing.", lambda m: ":, :3]" in m.new and ":, :2]" in m.old),
+]
+
+
+#: Which runs the results come from (edit with each run; "not checked" mutants were generated but not run).
+RUNS = [
+    "Runs behind these results (2026-12-01/02, on this 2-core machine):",
+    "",
+    "- the plan-only side (planning utils, maps, frames, the planning package, the plan-only CLI): one full run "
+    "before the flight branches merged; its survivors not explained by a rule were run again after the tests "
+    "that followed (the CLI's `main.py` changed in the merge: its survivors were matched to the new mutants by "
+    "their diff and run again);",
+    "- the flight side: the telemetry translation in full; the mission and the flight path only in part (a "
+    "mutant of theirs runs ~300 mission tests, ~17 s here under load: the whole module is hours; the rest are "
+    "'not checked' below).",
+    "",
+]
+
+
+def load_survivors(mutants_dir: Path) -> list[Mutant]:
+    import mutmut.__main__  # noqa: F401  (loads the configuration)
+    from mutmut.mutation.diff_apply import find_mutant, get_diff_for_mutant
+
+    survivors = []
+    for meta in sorted(mutants_dir.rglob("*.py.meta")):
+        codes = json.loads(meta.read_text())["exit_code_by_key"]
+        for name in sorted(k for k, v in codes.items() if v == 0):
+            diff = get_diff_for_mutant(name, path=find_mutant(name).path).splitlines()
+            minus = tuple(x[1:].strip() for x in diff if x.startswith("-") and not x.startswith("---"))
+            plus = tuple(x[1:].strip() for x in diff if x.startswith("+") and not x.startswith("+++"))
+            survivors.append(Mutant(name, minus, plus))
+    return survivors
+
+
+def totals(mutants_dir: Path) -> tuple[int, dict[str, int]]:
+    from mutmut.stats import status_by_exit_code
+
+    count, by_status = 0, defaultdict(int)
+    for meta in mutants_dir.rglob("*.py.meta"):
+        for code in json.loads(meta.read_text())["exit_code_by_key"].values():
+            count += 1
+            by_status[status_by_exit_code[code]] += 1
+    return count, dict(by_status)
+
+
+def numbers(names: list[str]) -> str:
+    return ", ".join(name.rsplit("_", 1)[1] for name in sorted(names, key=lambda n: int(n.rsplit("_", 1)[1])))
+
+
+def main() -> int:
+    mutants_dir = ROOT / "mutants"
+    if not mutants_dir.is_dir():
+        print("error: no mutants/ here; run `mutmut run` first (tests/README.md)", file=sys.stderr)
+        return 1
+    survivors = load_survivors(mutants_dir)
+    count, by_status = totals(mutants_dir)
+    grouped: dict[str, list[Mutant]] = defaultdict(list)
+    for m in survivors:
+        key = next((key for key, _, rule in REASONS if rule(m)), "unreviewed")
+        grouped[key].append(m)
+    lines = [
+        "# Mutation testing: the surviving mutants and why they are left",
+        "",
+        "Generated by `python docs/make_mutation_report.py` from the last `mutmut run` (configuration: pyproject's",
+        "`[tool.mutmut]`; command: `tests/README.md`). Mutant names are `module.x_function__mutmut_N`;",
+        "`mutmut show NAME` prints one's diff.",
+        "",
+        f"**{count} mutants**: " + ", ".join(f"{n} {status}" for status, n in sorted(by_status.items())) + ".",
+        "",
+        *RUNS,
+    ]
+    for key, reason, _ in [*REASONS, ("unreviewed", "Not yet reviewed (each listed with its diff).", None)]:
+        members = grouped.get(key, [])
+        if not members:
+            continue
+        lines += [f"## {len(members)} {key}", "", reason, ""]
+        by_function: dict[str, list[str]] = defaultdict(list)
+        for m in members:
+            by_function[m.function].append(m.name)
+        for function, names in sorted(by_function.items()):
+            lines.append(f"- `{function}`: {numbers(names)}")
+            if key == "unreviewed":
+                for name in names:
+                    m = next(x for x in members if x.name == name)
+                    lines.append(f"  - {name.rsplit('_', 1)[1]}: `{m.old[:150]}` -> `{m.new[:150]}`")
+        lines.append("")
+    (ROOT / "docs" / "mutation-report.md").write_text("\n".join(lines))
+    print(f"{len(survivors)} survivors, {len(grouped.get('unreviewed', []))} not yet reviewed")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -102,6 +102,19 @@ def test_feed_stamps_scans_with_the_local_position_they_arrived_at():
     assert second.local_ne is None and second.local_down_m is None
 
 
+def test_feed_places_a_scan_where_the_vehicle_was_at_the_scans_own_time():
+    # the scan was taken at 3.5 s of the autopilot's clock; the latest position is from 3.2 s, flying 10 m/s north
+    # and sinking 1 m/s: the scan was read 3 m further north and 0.3 m lower than that position
+    feed = SensorFeed()
+    moving = dict(local_time_s=3.2, local_velocity_ned=(10.0, 0.0, 1.0))
+    feed.handle(_obstacle_distance([1000] * 72), 1.0, 0.0, (12.5, -3.0), -4.5, **moving)
+    far = dict(local_time_s=1.0, local_velocity_ned=(10.0, 0.0, 1.0))  # 2.5 s apart: another clock, not moved
+    feed.handle(_obstacle_distance([1000] * 72), 1.1, 0.0, (12.5, -3.0), -4.5, **far)
+    near, kept = feed.drain()
+    assert near.local_ne == pytest.approx((15.5, -3.0)) and near.local_down_m == pytest.approx(-4.2)
+    assert kept.local_ne == (12.5, -3.0) and kept.local_down_m == -4.5
+
+
 def test_heading_relative_sectors_are_dropped_while_the_vehicle_yaws_fast_and_kept_once_it_holds():
     feed = SensorFeed()
 

@@ -515,7 +515,9 @@ class MavlinkLink:
                     log.log(level, "autopilot says: %s", entry.text)
             elif mtype in SensorFeed.MESSAGES:
                 t = self._telemetry
-                self.sensors.handle(msg, now, t.heading_rad, (t.north_m, t.east_m), t.down_m)
+                self.sensors.handle(msg, now, t.heading_rad, (t.north_m, t.east_m), t.down_m,
+                                    local_time_s=t.local_time_s,
+                                    local_velocity_ned=(t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps))
             elif mtype in TargetFeed.MESSAGES:
                 self.targets.handle(msg, now)
             else:

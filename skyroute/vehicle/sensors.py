@@ -181,6 +181,9 @@ class SensorFeed:
 
     #: Above this yaw rate (rad/s) heading-relative sectors are dropped: the heading that turns them lags.
     MAX_YAW_RATE_RAD_S = math.radians(30.0)
+    #: A scan more than this (s) from the latest local position sample keeps that position as it is (an autopilot
+    #: whose scans carry another clock, e.g. UNIX time, is not moved kilometres).
+    MAX_EXTRAPOLATION_S = 0.5
 
     def _note_heading(self, heading_rad: float, reading) -> None:
         """Track the yaw rate from the headings the readings came with (their sample times)."""
@@ -204,9 +207,15 @@ class SensorFeed:
         return self._yaw_rate_rad_s > self.MAX_YAW_RATE_RAD_S
 
     def handle(self, msg, received_s: float, heading_rad: float,
-               local_ne: tuple[float, float] | None = None, local_down_m: float | None = None) -> bool:
-        """Translate and queue ``msg`` if it is a sensor message (``local_ne``, ``local_down_m``: the vehicle's
-        local position at arrival, m, stamped on horizontal scans); True if it was one."""
+               local_ne: tuple[float, float] | None = None, local_down_m: float | None = None, *,
+               local_time_s: float = math.nan, local_velocity_ned: tuple[float, float, float] | None = None) -> bool:
+        """Translate and queue ``msg`` if it is a sensor message; True if it was one.
+
+        ``local_ne``, ``local_down_m``: the vehicle's latest local position (m), sampled at ``local_time_s`` (the
+        autopilot's seconds since boot) and moving at ``local_velocity_ned`` (m/s). A horizontal scan is stamped
+        with where the vehicle was at the scan's own time: that position moved on by the velocity for the
+        difference, up to :attr:`MAX_EXTRAPOLATION_S` (the two messages are not sampled together: 0.3 s apart at
+        10 m/s is 3 m, and a building's face read from 3 m back looks like a new obstacle in front of it)."""
         if msg.get_type() not in self.MESSAGES:
             return False
         reading = translate_sensor(msg, received_s, heading_rad)
@@ -217,9 +226,16 @@ class SensorFeed:
             self.turning_dropped += 1  # a heading-relative sector while the heading swings: not placed at all
             return True
         if isinstance(reading, RangeScan) and local_ne is not None and all(map(math.isfinite, local_ne)):
+            n, e = float(local_ne[0]), float(local_ne[1])
             down = float(local_down_m) if local_down_m is not None and math.isfinite(local_down_m) else None
-            reading = dataclasses.replace(reading, local_ne=(float(local_ne[0]), float(local_ne[1])),
-                                          local_down_m=down)
+            dt = reading.time_s - local_time_s
+            if local_velocity_ned is not None and abs(dt) <= self.MAX_EXTRAPOLATION_S:  # False while NaN
+                vn, ve, vd = (float(v) for v in local_velocity_ned)
+                if math.isfinite(vn) and math.isfinite(ve):
+                    n, e = n + vn * dt, e + ve * dt
+                if down is not None and math.isfinite(vd):
+                    down += vd * dt
+            reading = dataclasses.replace(reading, local_ne=(n, e), local_down_m=down)
         with self._cond:
             if isinstance(reading, HeightReading):
                 self.height = reading

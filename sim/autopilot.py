@@ -443,7 +443,7 @@ class Autopilot(CommandHandlers, TaskControl):
             float(home_local[0]), float(home_local[1]), float(-home_local[2]) + 0.0,
             self.personality.autopilot, base, self.mode.custom_mode, self.system_status(), self.landed_state(),
             armable, 50 if self.armed and self.airborne else 0,
-            fix_type, has_fix, olat, olon, oalt, not self.is_px4,
+            fix_type, has_fix, olat, olon, oalt, not self.is_px4, self.sensor is not None,
         )
 
     def truth(self) -> dict:

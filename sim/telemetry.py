@@ -34,6 +34,10 @@ SENSORS = (
     | M.MAV_SYS_STATUS_AHRS
     | M.MAV_SYS_STATUS_PREARM_CHECK
 )
+#: What SYS_STATUS adds while the obstacle sensors stream, as ArduPilot reports a configured proximity sensor and
+#: rangefinder (GCS_MAVLINK::update_sensor_status_flags): a client learns from these bits that DISTANCE_SENSOR is
+#: worth asking for.
+RANGE_SENSORS = M.MAV_SYS_STATUS_SENSOR_PROXIMITY | M.MAV_SYS_STATUS_SENSOR_LASER_POSITION
 
 #: AUTOPILOT_VERSION.capabilities as the real autopilots send them (measured on PX4 1.15.4 and ArduCopter 4.7.0-dev
 #: SITL). PX4's includes MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE: its integer parameters come bytewise
@@ -85,6 +89,8 @@ class TelemetrySnapshot:
     origin_alt_m: float
     #: ArduPilot's GLOBAL_POSITION_INT reads 0,0 until the GPS has a fix.
     global_zero_until_fix: bool
+    #: The obstacle sensors (horizontal and downward) are on: SYS_STATUS reports them present.
+    range_sensors: bool = False
 
 
 def _deg7(value: float) -> int:
@@ -102,9 +108,10 @@ def heartbeat(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
 
 
 def sys_status(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
-    health = SENSORS if s.armable else SENSORS & ~M.MAV_SYS_STATUS_PREARM_CHECK
+    present = SENSORS | (RANGE_SENSORS if s.range_sensors else 0)
+    health = present if s.armable else present & ~M.MAV_SYS_STATUS_PREARM_CHECK
     return mavlink.MAVLink_sys_status_message(
-        SENSORS, SENSORS, health, 200, 16000, -1, 100, 0, 0, 0, 0, 0, 0
+        present, present, health, 200, 16000, -1, 100, 0, 0, 0, 0, 0, 0
     )
 
 

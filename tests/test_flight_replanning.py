@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
@@ -90,3 +90,70 @@ def test_braking_decides_whether_to_turn_without_stopping():
     assert can_turn_in_time(far, 10.0, 3.0, 5.0) and not can_turn_in_time(near, 10.0, 3.0, 5.0)
     assert can_turn_in_time(near, 2.0, 3.0, 5.0) and can_turn_in_time(None, 20.0, 1.0, 5.0)
     assert not can_turn_in_time(Blockage("blocked", 2.0, (0.0, 0.0)), 1.0, 3.0, 5.0)
+
+
+@dataclass
+class FakeScan:
+    """The fields of a :class:`~skyroute.vehicle.sensors.RangeScan` the sensing step reads."""
+
+    local_ne: tuple | None = (0.0, 0.0)
+    local_down_m: float | None = None
+    bearings_rad: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    half_width_rad: float = 0.1
+    distances_m: np.ndarray = field(default_factory=lambda: np.array([5.0]))
+    max_range_m: float = 30.0
+    received_s: float = 0.0
+
+
+class PlacesMap:
+    """An obstacle map that records where each scan was placed (map north, east m)."""
+
+    def __init__(self):
+        self.at = []
+
+    def add_scan(self, north_m, east_m, *rest):
+        self.at.append((north_m, east_m))
+
+
+class SensingVehicle:
+    sensing = True
+
+    def __init__(self, *scans: FakeScan):
+        self.scans = list(scans)
+
+    def sensor_readings(self):
+        return self.scans
+
+
+def test_a_scan_is_placed_where_it_arrived_not_where_the_mission_reads_it():
+    obstacles = PlacesMap()
+    vehicle = SensingVehicle(FakeScan((10.0, 20.0)), FakeScan(None))
+    Sensing(vehicle, obstacles, lambda: 0.0).drain((55.0, 66.0), offset_ne=(100.0, -50.0))
+    assert obstacles.at == [(110.0, -30.0), (55.0, 66.0)]
+
+
+def test_scans_from_below_the_flight_altitude_are_dropped():
+    obstacles = PlacesMap()
+    # climbing through 2 m, at 4.5 m, at 5.2 m (local down, map = local - 1 m)
+    vehicle = SensingVehicle(*(FakeScan(local_down_m=down) for down in (-1.0, -3.5, -4.2)))
+    sensing = Sensing(vehicle, obstacles, lambda: 0.0)
+    sensing.drain((0.0, 0.0), (0.0, 0.0), offset_down_m=-1.0, min_altitude_m=4.0)
+    assert len(obstacles.at) == 2 and sensing.low_scans == 1
+
+
+def test_single_sectors_read_at_one_place_make_one_layer_update_and_whole_scans_their_own():
+    calls = []
+
+    class Map:
+        def add_scan(self, north_m, east_m, bearings, half, distances, max_range_m, error=0.0):
+            calls.append(len(bearings))
+
+    def sector(bearing_rad: float) -> FakeScan:
+        return FakeScan((1.0, 2.0), bearings_rad=np.array([bearing_rad]), half_width_rad=0.39)
+
+    eight = [sector(k * 0.785) for k in range(8)]
+    again = [sector(0.0)]  # the next round's first sector
+    whole = [FakeScan((1.0, 2.0), bearings_rad=np.zeros(72), half_width_rad=0.39, distances_m=np.ones(72))
+             for _ in range(2)]
+    Sensing(SensingVehicle(*eight, *again, *whole), Map(), lambda: 0.0).drain((0.0, 0.0), (0.0, 0.0))
+    assert calls == [8, 1, 72, 72]

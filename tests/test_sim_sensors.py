@@ -139,6 +139,9 @@ def test_ardupilot_sends_proximity_sectors_only_when_asked_and_only_once_valid(s
     c = sim_connect(sim)
     wait_sim(sim, 2.0)
     assert not c.of_type("DISTANCE_SENSOR") and not c.of_type("OBSTACLE_DISTANCE")
+    c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_SYS_STATUS, 200_000)  # ArduPilot: only when asked
+    ranging = M.MAV_SYS_STATUS_SENSOR_PROXIMITY | M.MAV_SYS_STATUS_SENSOR_LASER_POSITION
+    assert c.wait_for("SYS_STATUS").onboard_control_sensors_present & ranging == ranging  # how a client knows to ask
     ack = c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_DISTANCE_SENSOR, 100_000)
     assert ack.result == M.MAV_RESULT_ACCEPTED
     since = c.mark()
@@ -158,6 +161,8 @@ def test_sensor_off_streams_nothing_and_refuses_the_interval(sim_start, sim_conn
     c = sim_connect(sim)
     wait_sim(sim, 2.0)
     assert not c.of_type("OBSTACLE_DISTANCE")
+    ranging = M.MAV_SYS_STATUS_SENSOR_PROXIMITY | M.MAV_SYS_STATUS_SENSOR_LASER_POSITION
+    assert not c.wait_for("SYS_STATUS").onboard_control_sensors_present & ranging
     ack = c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_OBSTACLE_DISTANCE, 100_000)
     assert ack.result == M.MAV_RESULT_FAILED
     assert sim.report()["sensor"] == {"enabled": False}

@@ -121,6 +121,14 @@ def test_sys_status_battery_and_prearm():
     assert math.isnan(t.battery_voltage_v) and math.isnan(t.battery_remaining_pct) and t.prearm_ok is None
 
 
+def test_sys_status_says_whether_a_proximity_sensor_or_a_rangefinder_is_present():
+    base = mavlink.MAV_SYS_STATUS_SENSOR_GPS
+    for present, ranging in ((base, False), (base | mavlink.MAV_SYS_STATUS_SENSOR_PROXIMITY, True),
+                             (base | mavlink.MAV_SYS_STATUS_SENSOR_LASER_POSITION, True)):
+        msg = roundtrip(lambda e, p=present: e.sys_status_encode(p, p, p, 0, 12600, -1, 87, 0, 0, 0, 0, 0, 0))
+        assert vh.telemetry_from_sys_status(vh.Telemetry(), msg, 0.0).range_sensors is ranging
+
+
 def test_home_position():
     msg = roundtrip(lambda e: e.home_position_encode(377924800, -1223974500, 3500, 0, 0, 0, [1, 0, 0, 0],
                                                      0, 0, 0))

@@ -91,3 +91,41 @@ def test_feed_queues_readings_counts_scans_and_says_when_streaming():
     now[0] += 2.5
     assert not feed.streaming
     assert not feed.wait(0.01)
+
+
+def test_feed_stamps_scans_with_the_local_position_they_arrived_at():
+    feed = SensorFeed()
+    feed.handle(_obstacle_distance([1000] * 72), 1.0, 0.0, (12.5, -3.0), -4.5)
+    feed.handle(_obstacle_distance([1000] * 72), 1.1, 0.0, (math.nan, math.nan))  # no position yet
+    first, second = feed.drain()
+    assert first.local_ne == (12.5, -3.0) and first.local_down_m == -4.5
+    assert second.local_ne is None and second.local_down_m is None
+
+
+def test_feed_places_a_scan_where_the_vehicle_was_at_the_scans_own_time():
+    # the scan was taken at 3.5 s of the autopilot's clock; the latest position is from 3.2 s, flying 10 m/s north
+    # and sinking 1 m/s: the scan was read 3 m further north and 0.3 m lower than that position
+    feed = SensorFeed()
+    moving = dict(local_time_s=3.2, local_velocity_ned=(10.0, 0.0, 1.0))
+    feed.handle(_obstacle_distance([1000] * 72), 1.0, 0.0, (12.5, -3.0), -4.5, **moving)
+    far = dict(local_time_s=1.0, local_velocity_ned=(10.0, 0.0, 1.0))  # 2.5 s apart: another clock, not moved
+    feed.handle(_obstacle_distance([1000] * 72), 1.1, 0.0, (12.5, -3.0), -4.5, **far)
+    near, kept = feed.drain()
+    assert near.local_ne == pytest.approx((15.5, -3.0)) and near.local_down_m == pytest.approx(-4.2)
+    assert kept.local_ne == (12.5, -3.0) and kept.local_down_m == -4.5
+
+
+def test_heading_relative_sectors_are_dropped_while_the_vehicle_yaws_fast_and_kept_once_it_holds():
+    feed = SensorFeed()
+
+    def sector(time_ms):
+        return _wire(M.MAVLink_distance_sensor_message(time_ms, 20, 3000, 850, 0, 10, M.MAV_SENSOR_ROTATION_NONE, 0))
+
+    feed.handle(sector(1000), 1.0, 0.0)
+    feed.handle(sector(1100), 1.1, math.radians(9.0))  # 90 deg/s: turning
+    feed.handle(sector(1200), 1.2, math.radians(18.0))
+    assert feed.turning and feed.turning_dropped == 2
+    feed.handle(sector(1800), 1.8, math.radians(18.0))  # held for 0.6 s
+    north = _obstacle_distance([1000] * 72)  # north-aligned scans never depend on the heading
+    feed.handle(north, 1.9, math.radians(18.0))
+    assert not feed.turning and len(feed.drain()) == 3

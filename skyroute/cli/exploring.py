@@ -213,6 +213,12 @@ def run_exploration(options: dict) -> int:
         raise UserError("--explore flies: not with --plan-only, --json, --export or --view")
     if o["start_lat"] is not None or o["start_lon"] is not None:
         raise UserError("--explore starts where the vehicle stands: no --start_lat/--start_lon")
+    if o["no_replan"]:
+        raise UserError("--explore flies by what the vehicle senses: not with --no-replan")
+    if o["sim_map"] is not None and not o["sim"]:
+        raise UserError("--sim-map needs --sim (it is the bundled simulator's city)")
+    if o["sim_map"] is not None and not Path(o["sim_map"]).is_file():
+        raise UserError(f"--sim-map {o['sim_map']}: no such file")
     for name, low in (("alt", 0.0), ("safety", 0.0), ("timeout", 0.0), ("arm_timeout", 0.0),
                       ("link_timeout", 0.0), ("speedup", 0.0)):
         value = o[name]
@@ -241,13 +247,13 @@ def run_exploration(options: dict) -> int:
     from skyroute.cli.bundled_sim import BundledSim, sim_report_summary
 
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    bundled = BundledSim(map_path, speedup=o["speedup"], start=None,
+    bundled = BundledSim(o["sim_map"] or map_path, speedup=o["speedup"], start=None,
                          report_path=Path(o["log_dir"]) / f"sim-report-{stamp}.json",
                          log_path=Path(o["log_dir"]) / f"sim-{stamp}.txt")
     with bundled:
         if not o["quiet"]:
             print(f"started the bundled sim on {bundled.connection} at {o['speedup']:g}x speed (it flies in the "
-                  "--map given)", file=o["out"], flush=True)
+                  f"{'--sim-map' if o['sim_map'] else '--map'} given)", file=o["out"], flush=True)
         code = explore(map_path, connection=bundled.connection, **kwargs)
     report = bundled.report()
     if report is not None:

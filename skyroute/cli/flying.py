@@ -12,6 +12,7 @@ import numpy as np
 from skyroute.cli.exits import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NO_PATH, EXIT_OK, UserError
 from skyroute.cli.setting import Setting, make_plan, plan_summary, save_plot
 from skyroute.cli.view_export import open_view, write_exports
+from skyroute.planning.errors import PlanningError
 from skyroute.planning.plan import Plan
 
 log = logging.getLogger("motion_planning")
@@ -73,13 +74,16 @@ def fly(
     plot: str | None,
     view_port: int | None = None,
     exports: Sequence[str] | None = None,
+    replan: bool = True,
     out,
 ) -> int:
     """Connect, wait for the vehicle, plan from where it is, arm, take off, fly, land at the goal, disarm.
 
     Returns the exit code; problems before takeoff raise :class:`UserError`. Whatever happens after takeoff,
     the mission lands (or holds, or leaves a vehicle whose link stayed lost to its failsafe) before this returns,
-    and says so. Progress lines go to ``out`` unless ``quiet``.
+    and says so. Progress lines go to ``out`` unless ``quiet``. With ``replan`` (the default) and an autopilot that
+    streams obstacle data, the path is checked against what the sensor shows and replanned round it
+    (:func:`obstacle_map`).
     """
     from skyroute import vehicle as vehicle_mod
     from skyroute.flight import mission as mission_mod
@@ -107,7 +111,11 @@ def fly(
     plans: list[Plan] = []
     view = None
 
+    obstacles = obstacle_map(setting, goal_ne, planner) if replan else None
+
     def plan_from(start_north_m: float, start_east_m: float) -> np.ndarray:
+        if obstacles is not None and obstacles.live.hits.any():  # from the air, after an outage: the live grid
+            return obstacles.replan((start_north_m, start_east_m)).waypoints
         try:
             plan = make_plan(
                 setting, (start_north_m, start_east_m), goal_ne, planner,
@@ -120,6 +128,14 @@ def fly(
         return plan.waypoints
 
     geometry = Clearance(setting.city.obstacles, setting.safety_m)
+
+    def clearance(north_m, east_m, altitude_m, direction_north, direction_east, max_m) -> float:
+        """The map's clearance, and the observed obstacles' when sensing."""
+        reach = geometry.ray_m(north_m, east_m, altitude_m, direction_north, direction_east, max_m)
+        if obstacles is None or not obstacles.live.hits.any():
+            return reach
+        return min(reach, obstacles.clearance_m(north_m, east_m, direction_north, direction_east, reach))
+
     try:
         view = open_view(view_port, setting, goal_ne, out)
         say(f"connecting to {connection} ...")
@@ -139,8 +155,9 @@ def fly(
                 drone, plan_from, altitude_m=setting.altitude_m, map_origin=setting.home,
                 no_path_errors=(PlanRefused,), vehicle_errors=(vehicle_mod.VehicleError,),
                 goal_ne=goal_ne, surface_fn=geometry.surface_m, ground_amsl_m=ground_amsl_m,
-                clearance_fn=geometry.ray_m, progress=say,
+                clearance_fn=clearance, progress=say,
                 arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s,
+                obstacles=obstacles, replan_errors=(PlanningError,), replan_margin_m=setting.safety_m,
             )
             if view is not None:
                 view.follow(mission, drone)
@@ -158,7 +175,7 @@ def fly(
                     raise UserError(f"{exc}") from None  # it never took off: a refusal before takeoff
                 print(f"error: mission failed: {exc}", file=sys.stderr)
                 if exc.result is not None and plans and plot:
-                    save_plot(plot, setting, plans[-1], exc.result.track[:, 1:3])
+                    save_plot(plot, setting, plans[-1], exc.result.track[:, 1:3], **sensed(mission))
                 if exc.result is not None and plans:
                     write_exports(exports, setting, plans[-1], exc.result.track, out)
                 return EXIT_FAILED
@@ -169,7 +186,7 @@ def fly(
             drone.close()
         print(f"mission complete: {result.summary()}", file=out)
         if plot and plans:
-            save_plot(plot, setting, plans[-1], result.track[:, 1:3])
+            save_plot(plot, setting, plans[-1], result.track[:, 1:3], **sensed(mission))
             print(f"plot written to {plot}", file=out)
         if plans:
             write_exports(exports, setting, plans[-1], result.track, out)
@@ -181,6 +198,38 @@ def fly(
         handler.close()
         for logger_or_handler, level in saved_levels:
             logger_or_handler.setLevel(level)
+
+
+#: How far below the flight altitude a roof still explains the sensor's readings (m).
+FOOTPRINT_BELOW_M = 1.0
+
+
+def obstacle_map(setting: Setting, goal_ne: Sequence[float], planner: str):
+    """The live occupancy layer over the flight's planning grid and its replanner (``skyroute.planning``): the
+    map's footprint explains the sensor's readings of its own buildings; a fallback point must be landable (clear
+    of every building's margin at every lower altitude). Any-angle replans are pulled taut; every other planner
+    (3D ones included: observed obstacles' tops are unknown) replans on the 2D grid at the flight altitude."""
+    from skyroute.planning.cspace import create_grid
+    from skyroute.planning.livemap import LiveMap
+    from skyroute.planning.replan import Replanner
+
+    gm = setting.grid_map
+    # Roofs up to a metre below the altitude count too: the vehicle flies that much low at times, and its sensor
+    # then sees them (a roof it cannot see only reads farther, which the layer never takes for an obstacle).
+    footprint = create_grid(setting.city.obstacles, max(setting.altitude_m - FOOTPRINT_BELOW_M, 0.0), 0.0)[0]
+    landable = ~create_grid(setting.city.obstacles, 0.0, setting.safety_m)[0]
+    live = LiveMap.for_grid_map(gm, footprint)
+    method = "any-angle" if planner == "any-angle" else "grid"
+    return Replanner(live, goal_ne, setting.altitude_m, method=method, landable=landable)
+
+
+def sensed(mission) -> dict:
+    """What ``save_plot`` draws of a sensing flight: the observed obstacle cells and the replans."""
+    records = list(mission.sensing.records)
+    discovered = mission.sensing.discovered_ne()
+    if not records and len(discovered) == 0:
+        return {}
+    return {"discovered_ne": discovered, "replans": [r for r in records if r.waypoints is not None]}
 
 
 def interrupted_outcome(mission) -> str:

@@ -111,6 +111,8 @@ def run(
     log_dir: str | Path = "logs",
     view: int | None = None,
     export: Sequence[str] | None = None,
+    no_replan: bool = False,
+    sim_map: str | Path | None = None,
     explore: float | None = None,
     explore_time: float | None = None,
     save_map: str | None = None,
@@ -149,14 +151,18 @@ def run(
         options = dict(planner=planner, goal_alt_m=goal_alt, seed=seed, heartbeat_timeout_s=timeout,
                        arm_timeout_s=arm_timeout, link_lost_timeout_s=link_timeout, target_system=target_system,
                        signing_key=signing_key, ground_amsl_m=ground_amsl, quiet=quiet, log_dir=log_dir,
-                       plot=plot, view_port=view, exports=export, out=out)
+                       plot=plot, view_port=view, exports=export, replan=not no_replan, out=out)
+        if sim_map is not None and not sim:
+            raise UserError("--sim-map needs --sim (it is the bundled simulator's city)")
+        if sim_map is not None and not Path(sim_map).is_file():
+            raise UserError(f"--sim-map {sim_map}: no such file")
         if not sim:
             return fly(setting, goal_ne, connection=connection or f"tcp:{host}:{port}", **options)
         import time
 
         stamp = time.strftime("%Y%m%d-%H%M%S")
         start = None if start_lat is None else Geodetic(start_lat, start_lon, 0.0)
-        bundled = BundledSim(map_path, speedup=speedup, start=start,
+        bundled = BundledSim(sim_map or map_path, speedup=speedup, start=start,
                              report_path=Path(log_dir) / f"sim-report-{stamp}.json",
                              log_path=Path(log_dir) / f"sim-{stamp}.txt")
         with bundled:
@@ -225,6 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
     link.add_argument("--port", type=int, default=5760, help="autopilot TCP port (classic flag)")
     link.add_argument("--sim", action="store_true", help="start the bundled simulator, fly against it, stop it")
     link.add_argument("--speedup", type=float, default=5.0, help="with --sim: simulated seconds per wall second")
+    link.add_argument("--sim-map", dest="sim_map", metavar="FILE",
+                      help="with --sim: the city the simulator flies in (the truth), when it differs from --map "
+                      "(e.g. a changed city from python -m skyroute.cityedit; default: --map)")
     link.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for the autopilot's heartbeat")
     link.add_argument("--arm-timeout", dest="arm_timeout", type=float, default=60.0,
                       help="seconds to keep asking to arm while the autopilot is not ready")
@@ -241,6 +250,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="altitude of the map's ground above mean sea level (default: from the vehicle standing "
                       "on the surface the map shows under it)")
     link.add_argument("--log-dir", dest="log_dir", default="logs", help="where navigation logs and tlogs go")
+    link.add_argument("--no-replan", dest="no_replan", action="store_true",
+                      help="do not replan in flight round obstacles the autopilot's sensor shows (default: replan "
+                      "whenever it streams OBSTACLE_DISTANCE or proximity DISTANCE_SENSOR data)")
     explore = parser.add_argument_group("exploration (no goal; see skyroute/cli/exploring.py)")
     explore.add_argument("--explore", type=float, metavar="RADIUS_M",
                          help="explore the area within RADIUS_M of the start (frontiers, targets), fly home, land")

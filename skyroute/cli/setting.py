@@ -201,9 +201,10 @@ def print_plan(plan: Plan, out=sys.stdout) -> None:
     print(plan_summary(plan), file=out)
 
 
-def save_plot(path, setting: Setting, plan: Plan, track_ne=None) -> None:
+def save_plot(path, setting: Setting, plan: Plan, track_ne=None, *, discovered_ne=None, replans=None) -> None:
     """The plan's picture: over the configuration space at the flight altitude, or, for a route that changes
-    altitude, over the height map with its altitude profile."""
+    altitude, over the height map with its altitude profile; a flight that sensed obstacles adds them and every
+    replan."""
     from skyroute.view import plotting  # matplotlib only when a picture is asked for
 
     floor = None
@@ -217,5 +218,5 @@ def save_plot(path, setting: Setting, plan: Plan, track_ne=None) -> None:
         path, setting.city.obstacles, plan, altitude_m=setting.altitude_m, safety_m=setting.safety_m,
         track_ne=track_ne,
         grid=(setting.grid_map.grid, setting.grid_map.north_offset, setting.grid_map.east_offset),
-        floor=floor,
+        floor=floor, discovered_ne=discovered_ne, replans=replans,
     )

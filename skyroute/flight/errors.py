@@ -76,3 +76,8 @@ class ControlTakenOver(MissionError):
 
 class LinkLostInFlight(MissionError):
     """The link stayed lost for the link timeout; the autopilot's failsafe owns the vehicle."""
+
+
+class GoalUnreachableInFlight(MissionError):
+    """In flight, obstacles the map does not show blocked the goal or cut it off: the vehicle held, flew to the
+    nearest reachable safe point and landed there (or where it was, if there was none)."""

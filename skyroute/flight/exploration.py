@@ -156,7 +156,6 @@ class ExplorationMission(Mission):
         self.decide_every_s, self.stuck_window_s = float(decide_every_s), float(stuck_window_s)
         self.stuck_progress_m, self.back_off_m, self.arrive_m = float(stuck_progress_m), float(back_off_m), arrive_m
         self.carry_on_m = float(carry_on_m)
-        self.sensing: Sensing | None = None
         self.stats = ExplorationStats()
         self.targets: dict[int, Target] = {}
         self._leg_end: tuple[float, float] | None = None  # where the current leg goes (None: just hold here)
@@ -179,6 +178,10 @@ class ExplorationMission(Mission):
             return np.array([[north_m, east_m, math.nan, 0.0]])
         return self.explorer.route_to((north_m, east_m), self._leg_end)
 
+    def _sense(self, p, waypoints: np.ndarray, i: int) -> None:
+        """Not the mission's path check: exploring, every tick feeds the live map and the leg is re-decided
+        (:meth:`_tick`), which also re-routes round what the sensor shows."""
+
     def _fire(self, event):
         if event is E.GOAL_REACHED and not self._final_leg:
             event = E.WAYPOINT_REACHED  # an exploring leg's end: the flight goes on
@@ -191,9 +194,9 @@ class ExplorationMission(Mission):
                     and abs(wp[2] - p.altitude_m) <= self.altitude_tolerance_m)
         return super()._at_goal(wp)
 
-    def _tick(self) -> None:
-        super()._tick()
-        if self.state not in (S.TAKEOFF, S.WAYPOINT) or self.sensing is None:
+    def _tick(self, wake_on_sensor: bool = False) -> None:
+        super()._tick()  # a poll's sleep: every tick feeds the live map below and re-decides the leg on its own
+        if self.state not in (S.TAKEOFF, S.WAYPOINT) or self.explorer is None:
             return
         p = self._map_position()
         here = (p.north_m, p.east_m)

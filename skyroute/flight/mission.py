@@ -40,6 +40,7 @@ from .errors import (
     ArmingFailed,
     ControlTakenOver,
     FlightAborted,
+    GoalUnreachableInFlight,
     LandedMeanwhile,
     LinkLostInFlight,
     MissionError,
@@ -52,10 +53,12 @@ from .landing import LandingMixin
 from .path import SmoothPath, leg_headings, path_length_m, smooth_path
 from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, SurfaceFn, Vehicle
 from .recovery import RecoveryMixin, _Abort, _Resumed
+from .replanning import ObstacleMap, ReplanningMixin, Sensing, _Blocked
 from .states import AIRBORNE_STATES, TRANSITIONS, IllegalTransition, MissionEvent, MissionState, next_state
 
 __all__ = [  # the mission's vocabulary, importable from here
-    "TRANSITIONS", "ArmingFailed", "ControlTakenOver", "FlightAborted", "IllegalTransition", "LandedMeanwhile",
+    "TRANSITIONS", "ArmingFailed", "ControlTakenOver", "FlightAborted", "GoalUnreachableInFlight",
+    "IllegalTransition", "LandedMeanwhile",
     "LinkLostInFlight", "Mission", "MissionError", "MissionEvent", "MissionResult", "MissionState", "NoPathFound",
     "NotReady", "PlanningFailed", "Vehicle", "VehicleDisarmedInFlight", "next_state",
 ]
@@ -85,6 +88,7 @@ class MissionResult:
     airborne_s: float = math.nan
     landing_error_m: float = math.nan
     recoveries: int = 0
+    replans: list = field(default_factory=list)
     track: np.ndarray = field(default_factory=lambda: np.empty((0, 4)))
     history: list[tuple[MissionState, MissionEvent, MissionState]] = field(default_factory=list)
 
@@ -92,10 +96,11 @@ class MissionResult:
         """One line: planned length, flown length, airborne time, landing error (to the goal)."""
         text = (f"planned {self.planned_length_m:.1f} m, flown {self.flown_length_m:.1f} m, airborne "
                 f"{self.airborne_s:.1f} s, landing error {self.landing_error_m:.2f} m from the goal")
-        return text + (f", {self.recoveries} recoveries" if self.recoveries else "")
+        text += f", {self.recoveries} recoveries" if self.recoveries else ""
+        return text + (f", {len(self.replans)} replans" if self.replans else "")
 
 
-class Mission(RecoveryMixin, LandingMixin):
+class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
     """Fly ``plan_fn``'s waypoints with ``vehicle``; see the module docstring for the flow and the failures.
 
     Parameters
@@ -131,6 +136,14 @@ class Mission(RecoveryMixin, LandingMixin):
     lead_s, velocity_lag_s : float
         Steering (:func:`~.follower.steer`): the autopilot's response time on top of the link's round trip;
         how far ahead the feed-forward velocity is taken.
+    obstacles : ObstacleMap, optional
+        The live occupancy layer and its replanner (``skyroute.planning.replan.Replanner``): when given and the
+        vehicle streams obstacle data (``vehicle.sensing``), the rest of the path is checked at the sensor rate and
+        replanned round what the map does not show (:mod:`.replanning`). None: no replanning.
+    replan_errors : tuple of exception types
+        What ``obstacles.replan`` raises when the goal is blocked or cut off (with a ``fallback_ne`` attribute).
+    replan_margin_m, max_replans : float, int
+        The planning margin (for the braking rule); the most replans in one flight before landing where it is.
     clock, sleep : callables
         Injected for tests (monotonic seconds; sleep seconds).
     """
@@ -152,6 +165,8 @@ class Mission(RecoveryMixin, LandingMixin):
                  corner_cut_m: float = 0.5, cruise_mps: float = 10.0, accel_mps2: float = 3.0,
                  lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5, lead_s: float = 0.2,
                  velocity_lag_s: float = 0.15, poll_s: float = 0.02, track_interval_s: float = 0.2,
+                 obstacles: ObstacleMap | None = None, replan_errors: tuple[type[BaseException], ...] = (),
+                 replan_margin_m: float = 5.0, max_replans: int = 200,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
         if not altitude_m > 0:
             raise ValueError(f"altitude_m must be > 0, got {altitude_m}")
@@ -178,6 +193,8 @@ class Mission(RecoveryMixin, LandingMixin):
         self.lead_s, self.velocity_lag_s, self.brake_lag_s = lead_s, velocity_lag_s, 0.0
         self.poll_s, self.track_interval_s = poll_s, track_interval_s
         self.clock, self.sleep = clock, sleep
+        self.sensing = Sensing(vehicle, obstacles, clock)
+        self.replan_errors, self.replan_margin_m, self.max_replans = tuple(replan_errors), replan_margin_m, max_replans
         self.state = MissionState.MANUAL
         self.result = MissionResult(final_state=self.state)
         self.limits: Limits | None = None
@@ -231,15 +248,20 @@ class Mission(RecoveryMixin, LandingMixin):
         if force or not self._track or now - self._track[-1][0] >= self.track_interval_s:
             self._track.append((now, p.north_m, p.east_m, p.altitude_m))
 
-    def _tick(self) -> None:
-        """One poll: wait, notice a lost link or a lost mode, record the track, notice a disarm in flight."""
-        self.sleep(self.poll_s)
+    def _tick(self, wake_on_sensor: bool = False) -> None:
+        """One poll: wait (``wake_on_sensor``: until a sensor reading arrives, at most a poll), notice a lost link
+        or a lost mode, record the track, notice a disarm in flight."""
+        waiter = getattr(self.vehicle, "wait_sensor", None)
+        if wake_on_sensor and waiter is not None and self.sensing.active:
+            waiter(self.poll_s)
+        else:
+            self.sleep(self.poll_s)
         if not self.vehicle.link_ok:
             self._link_lost()
         self._sample()
         self._check_armed()
         self._check_local_frame()
-        if self.state in (S.TAKEOFF, S.WAYPOINT) and not self.vehicle.in_control:
+        if self.state in (S.TAKEOFF, S.WAYPOINT, S.REPLANNING) and not self.vehicle.in_control:
             self._recover(f"the autopilot left our flight mode for {self.vehicle.telemetry.mode or '?'}",
                           link_lost=False)
 
@@ -306,6 +328,8 @@ class Mission(RecoveryMixin, LandingMixin):
 
     def _finish(self, error: MissionError | None = None) -> MissionResult:
         r = self.result
+        r.replans = list(self.sensing.records)
+        self.sensing.log_summary()
         r.track = np.array(self._track, float).reshape(-1, 4)
         if len(r.track):
             r.flown_length_m = path_length_m(r.track[:, 1:])
@@ -511,7 +535,10 @@ class Mission(RecoveryMixin, LandingMixin):
                     break
                 except _Resumed:
                     path = self._resume_path(path)
+                except _Blocked as blocked:
+                    path = self._replan_in_flight(blocked.blockage)
             self._land()
+            self._check_reached_goal()
         except MissionError:
             raise
         except (_Abort, *self.vehicle_errors) as exc:
@@ -550,6 +577,7 @@ class Mission(RecoveryMixin, LandingMixin):
         ff_mps, ff_at = 0.0, self.clock()
         trim_at, self._trim_m = ff_at, np.zeros(2)
         self._near_goal_since = math.nan
+        sent_at = -math.inf
         while True:
             p = self._map_position()
             self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), self._progress_s)
@@ -563,6 +591,11 @@ class Mission(RecoveryMixin, LandingMixin):
                 return
             if self.clock() > deadline:
                 raise _Abort(self._not_reached(i, waypoints[i], i == last, deadline - start_s))
+            self._sense(p, waypoints, i)
+            if self.clock() - sent_at < 0.9 * self.poll_s:  # woken early by a reading: checked, nothing to send
+                self._tick(wake_on_sensor=True)
+                continue
+            sent_at = self.clock()
             t = self.vehicle.telemetry
             velocity = (t.local_v_north_mps, t.local_v_east_mps, -t.local_v_down_mps)
             rate = self._autopilot_rate()
@@ -583,9 +616,10 @@ class Mission(RecoveryMixin, LandingMixin):
             velocity_ned = None if sp.velocity is None else (float(sp.velocity[0]), float(sp.velocity[1]),
                                                              float(-sp.velocity[2]))
             self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading, velocity_ned=velocity_ned)
+            self._setpoint_sent()
             self._say(self._flying_line(path, t), every=True)
             self._check_following(ff_mps, t)
-            self._tick()
+            self._tick(wake_on_sensor=True)
 
     def _check_following(self, commanded_mps: float, t) -> None:
         """A vehicle in our mode that stands still for ``stuck_s`` while told to fly at ``stuck_mps`` or more has

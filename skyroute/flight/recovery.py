@@ -42,7 +42,7 @@ class RecoveryMixin:
             self._fire(E.LINK_LOST)
             self._wait_for_link("the link was lost while landing")
             return
-        if self.state in (S.TAKEOFF, S.WAYPOINT):
+        if self.state in (S.TAKEOFF, S.WAYPOINT, S.REPLANNING):
             self._recover("the link was lost", link_lost=True)
         self._wait_for_link(f"the link was lost in state {self.state.name}")
 

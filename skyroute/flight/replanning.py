@@ -9,7 +9,8 @@ the path; the mission turns a blockage into PATH_BLOCKED -> REPLANNING -> WAYPOI
 hold first when the vehicle could not stop short of the obstacle (:func:`can_turn_in_time`).
 
 Latency: a :class:`ReplanRecord`'s ``latency_ms`` runs from the arrival of the oldest reading of the poll that
-found the blockage (our monotonic clock, stamped by the link's reader) to the first setpoint of the new path.
+found the blockage (our monotonic clock, stamped by the link's reader) to the first setpoint of the new path, or
+to the first brake setpoint when the vehicle brakes first.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ class ObstacleMap(Protocol):
     """What the mission needs of the live layer and its replanner (``skyroute.planning.replan.Replanner``)."""
 
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
-                 max_range_m: float) -> object: ...
+                 max_range_m: float, bearing_error_rad: float = 0.0) -> object: ...
 
     def check(self, position_ne: Sequence[float], waypoints_ne: np.ndarray) -> Blockage | None: ...
 
@@ -127,6 +128,7 @@ class Sensing:
     clock: Callable[[], float]
     scans: int = 0
     heights: int = 0
+    low_scans: int = 0
     records: list[ReplanRecord] = field(default_factory=list)
     _oldest_s: float = math.nan
 
@@ -135,8 +137,15 @@ class Sensing:
         """Replanning is on and the autopilot streams obstacle data."""
         return self.obstacles is not None and bool(getattr(self.vehicle, "sensing", False))
 
-    def drain(self, position_ne: Sequence[float]) -> bool:
-        """Feed every reading queued since the last call to the map at ``position_ne``; True if there were any."""
+    def drain(self, position_ne: Sequence[float], offset_ne: Sequence[float] | None = None, *,
+              offset_down_m: float | None = None, min_altitude_m: float | None = None) -> bool:
+        """Feed every reading queued since the last call to the map; True if there were any.
+
+        A reading stamped with the local position it arrived at (``local_ne``, the autopilot's frame) is placed
+        there, moved into the map frame by ``offset_ne`` (map minus local, north and east m); others (or all,
+        without an offset) at ``position_ne``, the vehicle's map position now. One stamped with its down
+        coordinate (``local_down_m``) from below ``min_altitude_m`` (map altitude, with ``offset_down_m`` map
+        minus local down) is dropped: climbing or sinking, the sensor sees roofs the layer's footprint leaves out."""
         readings = getattr(self.vehicle, "sensor_readings", None)
         if readings is None:
             return False
@@ -144,24 +153,53 @@ class Sensing:
         if not got or self.obstacles is None:
             return bool(got)
         n, e = float(position_ne[0]), float(position_ne[1])
+        offset = None if offset_ne is None else (float(offset_ne[0]), float(offset_ne[1]))
+        batch: list = []  # sectors read at one place (ArduPilot sends one message per sector): one layer update
+
+        def flush() -> None:
+            if batch:
+                sn, se, half, rng, err = batch[0][:5]
+                self.obstacles.add_scan(sn, se, np.concatenate([b[5] for b in batch]), half,
+                                        np.concatenate([b[6] for b in batch]), rng, err)
+                batch.clear()
+
         for r in got:
             if hasattr(r, "bearings_rad"):
-                self.obstacles.add_scan(n, e, r.bearings_rad, r.half_width_rad, r.distances_m, r.max_range_m)
+                down = getattr(r, "local_down_m", None)
+                if down is not None and offset_down_m is not None and min_altitude_m is not None \
+                        and -(down + offset_down_m) < min_altitude_m:
+                    self.low_scans += 1
+                    continue
+                at = getattr(r, "local_ne", None)
+                sn, se = (n, e) if at is None or offset is None else (at[0] + offset[0], at[1] + offset[1])
+                key = (sn, se, float(r.half_width_rad), float(r.max_range_m),
+                       float(getattr(r, "bearing_error_rad", 0.0)))
+                bearings = np.asarray(r.bearings_rad, float)
+                if batch and (batch[0][:5] != key or len(bearings) != 1
+                              or any(float(b[5][0]) == float(bearings[0]) for b in batch)):
+                    flush()  # a whole scan, another place, or the same sector again: its own update
+                batch.append((*key, bearings, np.asarray(r.distances_m, float)))
+                if len(bearings) != 1:
+                    flush()
                 self.scans += 1
                 received = float(getattr(r, "received_s", math.nan))
                 if math.isfinite(received) and not received >= self._oldest_s:
                     self._oldest_s = received
-            else:
-                self.heights += 1
+                continue
+            flush()
+            self.heights += 1
+        flush()
         return True
 
-    def step(self, position_ne: Sequence[float], waypoints_ne: np.ndarray) -> Blockage | None:
-        """Drain the readings and check the path ``position -> waypoints_ne``; the blockage, or None."""
+    def step(self, position_ne: Sequence[float], waypoints_ne: np.ndarray,
+             offset_ne: Sequence[float] | None = None, **below) -> Blockage | None:
+        """Drain the readings (see :meth:`drain`) and check the path ``position -> waypoints_ne``; the blockage,
+        or None."""
         if not self.active:
             self.drain(position_ne)
             self._oldest_s = math.nan
             return None
-        fresh = self.drain(position_ne)
+        fresh = self.drain(position_ne, offset_ne, **below)
         if not fresh:
             return None
         blockage = self.obstacles.check(position_ne, waypoints_ne)
@@ -173,13 +211,185 @@ class Sensing:
         """Milliseconds since the oldest reading behind the current blockage arrived (NaN if unknown)."""
         return (self.clock() - self._oldest_s) * 1e3 if math.isfinite(self._oldest_s) else math.nan
 
+    @property
+    def blocking_reading_s(self) -> float:
+        """When (our clock) the oldest reading behind the current blockage arrived (NaN if unknown)."""
+        return self._oldest_s
+
     def record(self, entry: ReplanRecord) -> None:
         self.records.append(entry)
         self._oldest_s = math.nan
         log.info("replan: %s", entry.describe())
+
+    def log_summary(self) -> None:
+        """One log line at the end of a flight: scans taken, dropped as too low, obstacle cells found, replans."""
+        if self.obstacles is None and not self.scans:
+            return
+        cells = self.discovered_ne()
+        where = ""
+        if len(cells):
+            lo, hi = cells.min(axis=0), cells.max(axis=0)
+            where = f" within ({lo[0]:.0f}..{hi[0]:.0f} N, {lo[1]:.0f}..{hi[1]:.0f} E)"
+        log.info("sensing: %d scans (%d from below the altitude, dropped), %d observed obstacle cells%s, %d replans",
+                 self.scans, self.low_scans, len(cells), where, len(self.records))
 
     def discovered_ne(self) -> np.ndarray:
         """Map ``(north_m, east_m)`` of the observed obstacle cells, ``(K, 2)``."""
         if self.obstacles is None:
             return np.empty((0, 2))
         return np.asarray(self.obstacles.discovered_ne(), float).reshape(-1, 2)
+
+
+class _Blocked(Exception):
+    """Internal: the sensing step found the rest of the path blocked; carries the blockage."""
+
+    def __init__(self, blockage: Blockage):
+        super().__init__(f"path {blockage.reason} {blockage.along_m:.1f} m ahead")
+        self.blockage = blockage
+
+
+class ReplanningMixin:
+    """The mission's REPLANNING state (a mixin of :class:`~.mission.Mission`; uses its vehicle, clock, progress,
+    speeds, ``sensing``, ``replan_errors``, ``replan_margin_m``, ``max_replans`` and ``result``)."""
+
+    _target_ne: tuple[float, float] | None = None
+    _unreachable: str | None = None
+    _pending: ReplanRecord | None = None
+    _reading_s: float = math.nan  # arrival of the reading behind the blockage being handled
+    _first_setpoint_ms: float = math.nan  # reading -> first new setpoint (the brake's, when braking)
+
+    @property
+    def discovered_obstacles(self) -> np.ndarray:
+        """Observed obstacle cells as ``(K, 6)`` boxes (1 m squares up to twice the flight altitude), for the view."""
+        pts = self.sensing.discovered_ne()
+        top = 2.0 * self.altitude_m
+        out = np.empty((len(pts), 6))
+        out[:, :2] = pts
+        out[:, 2] = out[:, 5] = top / 2.0
+        out[:, 3] = out[:, 4] = 0.5
+        return out
+
+    def _offset_ne(self) -> tuple[float, float]:
+        """Map minus the autopilot's local frame, north and east m (the mission's datum)."""
+        return self._offset.north_m, self._offset.east_m
+
+    def _low(self) -> dict:
+        """Which scans are too low for the layer: from below the flight altitude less the altitude tolerance."""
+        return {"offset_down_m": self._offset.down_m, "min_altitude_m": self.altitude_m - self.altitude_tolerance_m}
+
+    def _sense(self, p, waypoints: np.ndarray, i: int) -> None:
+        """Feed the readings and check the rest of the path (from the vehicle through waypoints ``i:``)."""
+        blockage = self.sensing.step((p.north_m, p.east_m), waypoints[i:, :2], self._offset_ne(), **self._low())
+        if blockage is not None:
+            raise _Blocked(blockage)
+
+    def _replan_in_flight(self, blockage: Blockage) -> np.ndarray:
+        """PATH_BLOCKED -> REPLANNING -> WAYPOINT: brake first if the vehicle cannot stop short of the obstacle,
+        then a new route from where it is (to the goal, or to the fallback point once the goal is out of reach)."""
+        from .states import MissionEvent as E
+
+        self._fire(E.PATH_BLOCKED)
+        self._reading_s, self._first_setpoint_ms = self.sensing.blocking_reading_s, math.nan
+        if len(self.sensing.records) >= self.max_replans:
+            raise _abort(f"{self.max_replans} replans and still blocked")
+        t = self.vehicle.telemetry
+        speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
+        braked = not can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m)
+        if braked:
+            self._brake()
+        p = self._map_position()
+        here = (p.north_m, p.east_m)
+        self.sensing.drain(here, self._offset_ne(), **self._low())
+        target = self._target_ne
+        try:
+            route = (self.sensing.obstacles.replan(here) if target is None
+                     else self.sensing.obstacles.route_to(here, target))
+        except self.replan_errors as exc:
+            return self._goal_out_of_reach(exc, blockage, braked, p)
+        waypoints = self._flight_waypoints(route.waypoints, p)
+        self._pending = ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
+                                     float(route.plan_ms), math.nan, braked, waypoints)
+        self._say(f"obstacle on the path {blockage.along_m:.0f} m ahead ({blockage.reason}): "
+                  f"{'braked and ' if braked else ''}replanned in {route.plan_ms:.0f} ms")
+        self._fire(E.REPLANNED)
+        return waypoints
+
+    def _flight_waypoints(self, waypoints: np.ndarray, p) -> np.ndarray:
+        from .path import leg_headings
+
+        wps = np.array(waypoints, dtype=float).reshape(-1, 4)
+        wps[np.isnan(wps[:, 2]), 2] = self.altitude_m
+        wps[0, :3] = (p.north_m, p.east_m, wps[0, 2])
+        wps[:, 3] = leg_headings(wps)
+        self.result.waypoints = wps
+        self._progress_s = 0.0
+        return wps
+
+    def _brake(self) -> None:
+        """Command a hold where the vehicle is and wait (bounded) until it has nearly stopped."""
+        p = self._map_position()
+        target = self._to_local(p.north_m, p.east_m, p.altitude_m)
+        heading = float(getattr(self.vehicle.telemetry, "heading_rad", 0.0) or 0.0)
+        deadline = self.clock() + 10.0
+        while self.clock() < deadline:
+            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading, velocity_ned=None)
+            if not math.isfinite(self._first_setpoint_ms):
+                self._first_setpoint_ms = (self.clock() - self._reading_s) * 1e3
+            t = self.vehicle.telemetry
+            if math.hypot(t.local_v_north_mps, t.local_v_east_mps) <= 2.0 * self.stop_speed_mps:
+                return
+            self._tick()
+
+    def _goal_out_of_reach(self, exc: Exception, blockage: Blockage, braked: bool, p) -> np.ndarray:
+        """Hold, say so, and fly to the nearest reachable safe point (or stay here) to land there."""
+        from .states import MissionEvent as E
+
+        if not braked:
+            self._brake()
+            p = self._map_position()
+        why = str(exc)
+        self._unreachable = why
+        self._say(f"{why}: holding; landing at the nearest reachable safe point")
+        log.warning("goal out of reach: %s", why)
+        self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
+                                         math.nan, math.nan, True, None, outcome=why))
+        fallback = getattr(exc, "fallback_ne", None)
+        here = (p.north_m, p.east_m)
+        route = None
+        if fallback is not None and math.dist(fallback, here) > 1.0:
+            self._target_ne = (float(fallback[0]), float(fallback[1]))
+            try:
+                route = self.sensing.obstacles.route_to(here, self._target_ne)
+            except self.replan_errors as again:
+                log.warning("no route to the fallback point either: %s", again)
+        self._fire(E.GOAL_UNREACHABLE)
+        if route is None:
+            self._target_ne = here
+            return self._flight_waypoints(np.array([[p.north_m, p.east_m, self.altitude_m, 0.0]]), p)
+        return self._flight_waypoints(route.waypoints, p)
+
+    def _setpoint_sent(self) -> None:
+        """After a setpoint: the first one of a new route closes its replan record with the latency."""
+        if self._pending is not None:
+            rec = self._pending
+            self._pending = None
+            latency = self._first_setpoint_ms
+            if not math.isfinite(latency):
+                latency = (self.clock() - self._reading_s) * 1e3
+            self.sensing.record(ReplanRecord(rec.time_s, rec.north_m, rec.east_m, rec.reason, rec.along_m,
+                                             rec.plan_ms, latency, rec.braked, rec.waypoints, rec.outcome))
+
+    def _check_reached_goal(self) -> None:
+        """After landing: a mission whose goal went out of reach ends in an error (the CLI exits 1)."""
+        from .errors import GoalUnreachableInFlight
+
+        if self._unreachable is not None:
+            p = self._map_position()
+            raise GoalUnreachableInFlight(f"{self._unreachable}; landed at map ({p.north_m:.1f} N, {p.east_m:.1f} E) "
+                                          "instead of the goal")
+
+
+def _abort(why: str) -> Exception:
+    from .recovery import _Abort
+
+    return _Abort(why)

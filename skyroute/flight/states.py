@@ -4,7 +4,9 @@
 anything else. The flow on a real autopilot: wait for the estimator (PREFLIGHT), plan from where the vehicle is
 (PLANNING), select the flight mode and arm (ARMING), take off at once, fly, land, disarm. An outage or a lost
 mode in the air goes through RECOVERING, which resumes the flight, ends it (landed meanwhile, link gone for
-good) or hands the vehicle over to a pilot who took it (HANDED_OVER).
+good) or hands the vehicle over to a pilot who took it (HANDED_OVER). An obstacle the map does not show on the
+path goes through REPLANNING (PATH_BLOCKED; REPLANNED flies on, GOAL_UNREACHABLE flies to the nearest reachable
+safe point and lands there).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ class MissionState(enum.Enum):
     ARMING = "arming"  # selecting our flight mode and arming
     TAKEOFF = "takeoff"
     WAYPOINT = "waypoint"
+    REPLANNING = "replanning"  # the sensor showed an obstacle on the path: braking if need be, planning anew
     RECOVERING = "recovering"  # the link or our flight mode was lost in the air: waiting, reading, taking back
     LANDING = "landing"
     DISARMING = "disarming"
@@ -50,10 +53,13 @@ class MissionEvent(enum.Enum):
     DISARMED = "disarmed"
     DISARM_FAILED = "disarm failed"
     DISARMED_IN_FLIGHT = "disarmed in flight"  # between takeoff and touchdown: crashed or killed by the autopilot
+    PATH_BLOCKED = "path blocked"  # an observed obstacle (or its margin) on the path within the look-ahead
+    REPLANNED = "replanned"  # a new route from where the vehicle is: fly on along it
+    GOAL_UNREACHABLE = "goal unreachable"  # the goal is blocked or cut off: fly to the nearest reachable safe point
 
 
 S, E = MissionState, MissionEvent
-_FLYING = (S.TAKEOFF, S.WAYPOINT)
+_FLYING = (S.TAKEOFF, S.WAYPOINT, S.REPLANNING)
 TRANSITIONS: dict[tuple[MissionState, MissionEvent], MissionState] = {
     (S.MANUAL, E.START): S.PREFLIGHT,
     (S.PREFLIGHT, E.READY): S.PLANNING,
@@ -71,6 +77,9 @@ TRANSITIONS: dict[tuple[MissionState, MissionEvent], MissionState] = {
     (S.TAKEOFF, E.TAKEOFF_DONE): S.WAYPOINT,
     (S.WAYPOINT, E.WAYPOINT_REACHED): S.WAYPOINT,
     (S.WAYPOINT, E.GOAL_REACHED): S.LANDING,
+    (S.WAYPOINT, E.PATH_BLOCKED): S.REPLANNING,
+    (S.REPLANNING, E.REPLANNED): S.WAYPOINT,
+    (S.REPLANNING, E.GOAL_UNREACHABLE): S.WAYPOINT,
     **{(state, E.ABORT): S.LANDING for state in _FLYING},
     **{(state, E.LINK_LOST): S.RECOVERING for state in _FLYING},
     **{(state, E.CONTROL_LOST): S.RECOVERING for state in _FLYING},
@@ -91,8 +100,8 @@ TRANSITIONS: dict[tuple[MissionState, MissionEvent], MissionState] = {
 del S, E
 
 #: States in which the vehicle may be in the air under our control.
-AIRBORNE_STATES = frozenset({MissionState.TAKEOFF, MissionState.WAYPOINT, MissionState.RECOVERING,
-                             MissionState.LANDING})
+AIRBORNE_STATES = frozenset({MissionState.TAKEOFF, MissionState.WAYPOINT, MissionState.REPLANNING,
+                             MissionState.RECOVERING, MissionState.LANDING})
 
 
 class IllegalTransition(ValueError):

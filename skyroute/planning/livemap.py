@@ -176,9 +176,17 @@ class LiveMap:
         return np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
 
     def _predicted(self, p: np.ndarray, window, centres: np.ndarray, half_width: float,
-                   range_m: float) -> np.ndarray:
-        """The map's predicted range in each sector (inf where its footprint has nothing within ``range_m``)."""
+                   range_m: float, bearing_error: float = 0.0) -> np.ndarray:
+        """The map's predicted range in each sector (inf where its footprint has nothing within ``range_m``): the
+        nearest footprint point in the sector widened by ``bearing_error`` on each side (rad: how far the sector
+        itself may be turned, e.g. a heading-relative sensor's heading lag)."""
         out = np.full(len(centres), np.inf)
+        if bearing_error > 0:  # widened sectors overlap: each is its own wedge
+            half_width = half_width + bearing_error
+            centres = centres + np.zeros(1)  # a copy, so the contiguous shortcut below is not taken for k > 1
+            if len(centres) > 1:
+                return np.array([self._predicted(p, window, centres[k:k + 1], half_width, range_m)[0]
+                                 for k in range(len(centres))])
         if self.footprint is None:
             return out
         i0, i1, j0, j1 = window
@@ -195,11 +203,30 @@ class LiveMap:
         d = np.repeat(dist, len(_SAMPLES))
         ok = (sector >= 0) & (d <= range_m)
         np.minimum.at(out, sector[ok], d[ok])
+        # A building that only grazes a sector (its corner inside the wedge, no sample point of it there) meets
+        # one of the sector's edges: the range along both edge rays bounds the sector's minimum from above.
+        for edge in (-half_width, half_width):
+            np.minimum(out, self._ray_ranges(p, window, centres + edge, range_m), out=out)
         return out
 
+    def _ray_ranges(self, p: np.ndarray, window, bearings: np.ndarray, range_m: float) -> np.ndarray:
+        """Distance along each bearing from ``p`` to the first footprint cell inside ``window`` (marched at a
+        quarter metre; inf when none within ``range_m``)."""
+        i0, i1, j0, j1 = window
+        steps = np.arange(0.0, range_m + 1e-9, 0.25)
+        pts_n = p[0] + np.cos(bearings)[:, None] * steps[None, :]
+        pts_e = p[1] + np.sin(bearings)[:, None] * steps[None, :]
+        ci = np.floor(pts_n - self.north_offset).astype(np.int64)
+        cj = np.floor(pts_e - self.east_offset).astype(np.int64)
+        on = (ci >= i0) & (ci < i1) & (cj >= j0) & (cj < j1)
+        hit = on & self.footprint[np.where(on, ci, i0), np.where(on, cj, j0)]
+        first = hit.argmax(axis=1)
+        return np.where(hit.any(axis=1), steps[first], np.inf)
+
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
-                 max_range_m: float) -> ScanUpdate:
-        """Take one scan from the sensor at map ``(north_m, east_m)`` (see the module notes)."""
+                 max_range_m: float, bearing_error_rad: float = 0.0) -> ScanUpdate:
+        """Take one scan from the sensor at map ``(north_m, east_m)`` (see the module notes); ``bearing_error_rad``:
+        how far off the sectors' bearings may be (a reading the map explains within that turn is the map's)."""
         centres = np.asarray(bearings_rad, dtype=float) % _TWO_PI
         dist = np.asarray(distances_m, dtype=float)
         half = float(half_width_rad)
@@ -209,7 +236,7 @@ class LiveMap:
         self.scans += 1
         if i0 >= i1 or j0 >= j1:
             return ScanUpdate(0, 0, 0, 0, False)
-        predicted = self._predicted(p, window, centres, half, max_range_m)
+        predicted = self._predicted(p, window, centres, half, max_range_m, float(bearing_error_rad))
         reach = np.where(np.isinf(dist), max_range_m, dist)  # NaN stays NaN: nothing seen
         # Seen free: cells wholly closer than the reading (with half a metre to spare) in a known sector.
         ii, jj = np.mgrid[i0:i1, j0:j1]

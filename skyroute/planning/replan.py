@@ -132,6 +132,7 @@ class Replanner:
         live = self.live
         travelled = 0.0
         first_margin: Blockage | None = None
+        leaving = True  # a vehicle already within an observed obstacle's margin (braked there) may fly out of it
         for a, b in zip(pts[:-1], pts[1:]):
             leg = b - a
             length = float(np.hypot(*leg))
@@ -150,6 +151,10 @@ class Replanner:
             ci, cj = np.where(on, cells[:, 0], 0), np.where(on, cells[:, 1], 0)
             hit = on & live.hits[ci, cj]
             near = on & live.inflated[ci, cj]
+            if leaving:
+                outside = np.flatnonzero(~near)
+                near[: outside[0] if len(outside) else len(near)] = False
+                leaving = len(outside) == 0
             if near.any() and first_margin is None:
                 k = int(np.argmax(near))
                 first_margin = Blockage("margin", round(travelled + float(steps[k]), 3),
@@ -166,9 +171,10 @@ class Replanner:
 
     # ------------------------------------------------------------------------------------------- sensing
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
-                 max_range_m: float):
+                 max_range_m: float, bearing_error_rad: float = 0.0):
         """Feed one scan to the live layer (:meth:`LiveMap.add_scan`)."""
-        return self.live.add_scan(north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m)
+        return self.live.add_scan(north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m,
+                                  bearing_error_rad)
 
     def discovered_ne(self) -> np.ndarray:
         """Map ``(north_m, east_m)`` of every observed obstacle cell's centre, ``(K, 2)``."""

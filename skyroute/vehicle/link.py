@@ -104,9 +104,10 @@ class MavlinkLink:
         LOCAL_POSITION_NED, which the mission steers by (40 bytes a message: 2 kB/s at 50 Hz).
     sensor_rate_hz : float
         Requested rate of DISTANCE_SENSOR (ArduPilot sends its proximity sectors and rangefinders only when asked;
-        PX4 streams OBSTACLE_DISTANCE on its onboard link by itself). Readings go to :attr:`sensors`. 0 (the
-        default here) does not ask: at 10 Hz the extra traffic cost ArduCopter SITL's killed-client test its
-        clearance (3.46 m < 3.5 m, tests/test_sitl_arducopter.py), so asking waits for the mission that uses it.
+        PX4 streams OBSTACLE_DISTANCE on its onboard link by itself). Readings go to :attr:`sensors`. It is asked
+        for only once SYS_STATUS reports a proximity sensor or a laser rangefinder present (ArduPilot's way of
+        saying it has one; 0 never asks): an autopilot without one is spared the request (asking ArduCopter SITL,
+        which has none, for 10 Hz cost its killed-client test clearance, 3.46 m < 3.5 m).
     feedforward_timeout_s : float
         Re-sends drop the velocity feed-forward once it is older than this (the vehicle then brakes at the
         position), so a stalled mission never keeps the vehicle coasting on.
@@ -135,7 +136,7 @@ class MavlinkLink:
         telemetry_rate_hz: float = 10.0,
         feedforward_timeout_s: float = 0.5,
         local_position_rate_hz: float = 50.0,
-        sensor_rate_hz: float = 0.0,
+        sensor_rate_hz: float = 10.0,
         source_system: int = DEFAULT_SOURCE_SYSTEM,
         source_component: int = DEFAULT_SOURCE_COMPONENT,
         tlog_path: str | os.PathLike | None = None,
@@ -161,7 +162,8 @@ class MavlinkLink:
             "GLOBAL_POSITION_INT": telemetry_rate_hz,
             "LOCAL_POSITION_NED": max(telemetry_rate_hz, local_position_rate_hz),
             "ATTITUDE": telemetry_rate_hz, "EXTENDED_SYS_STATE": telemetry_rate_hz, "SYS_STATUS": 1.0,
-            "GPS_RAW_INT": 2.0, **({"DISTANCE_SENSOR": sensor_rate_hz} if sensor_rate_hz > 0 else {})})
+            "GPS_RAW_INT": 2.0})
+        self._sensor_rate_hz = sensor_rate_hz
         self.sensors = SensorFeed()  # obstacle sensor readings (skyroute.vehicle.sensors), drained by the mission
         self.targets = TargetFeed()  # ground target sightings (skyroute.vehicle.targets), drained by exploration
         self._once_received: set[str] = set()
@@ -432,6 +434,9 @@ class MavlinkLink:
                     self._timesyncs = {k: v for k, v in self._timesyncs.items() if now - v < 10.0}
                     self._timesyncs[stamp] = now
                     self._send(mavlink.MAVLink_timesync_message(0, stamp))
+                if (self._sensor_rate_hz > 0 and self._telemetry.range_sensors
+                        and "DISTANCE_SENSOR" not in self._streams):
+                    self._streams.add("DISTANCE_SENSOR", self._sensor_rate_hz)
                 for stream in self._streams.due(now):
                     self._request_stream(stream, now)
                 for name, (msg_id, most) in _ONCE.items():
@@ -509,7 +514,10 @@ class MavlinkLink:
                     level = logging.WARNING if entry.severity <= mavlink.MAV_SEVERITY_ERROR else logging.INFO
                     log.log(level, "autopilot says: %s", entry.text)
             elif mtype in SensorFeed.MESSAGES:
-                self.sensors.handle(msg, now, self._telemetry.heading_rad)
+                t = self._telemetry
+                self.sensors.handle(msg, now, t.heading_rad, (t.north_m, t.east_m), t.down_m,
+                                    local_time_s=t.local_time_s,
+                                    local_velocity_ned=(t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps))
             elif mtype in TargetFeed.MESSAGES:
                 self.targets.handle(msg, now)
             else:

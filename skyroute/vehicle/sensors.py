@@ -24,6 +24,7 @@ at translation time (the latest ATTITUDE). Distances in metres, ``inf`` = nothin
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -40,6 +41,9 @@ _YAW_ORIENTATIONS = {getattr(mavlink, f"MAV_SENSOR_ROTATION_{name}"): deg for na
     ("YAW_270", 270), ("YAW_315", 315))}
 _NORTH_FRAMES = {mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_LOCAL_NED}
 _TWO_PI = 2.0 * math.pi
+#: How far a heading-relative sector's bearing may be off: ArduCopter yaws at up to ~90 deg/s and the heading comes
+#: with ATTITUDE at 10 Hz, so up to ~10 degrees, with room for the sensor's own sample time.
+HEADING_LAG_RAD = math.radians(15.0)
 
 
 @dataclass(frozen=True)
@@ -49,7 +53,12 @@ class RangeScan:
     ``bearings_rad`` (K,) each sector's centre (clockwise from north), ``half_width_rad`` the sectors' half width,
     ``distances_m`` (K,) to the nearest obstacle in the sector (``inf`` none within ``max_range_m``, ``NaN``
     unknown), ``min_range_m`` / ``max_range_m`` the sensor's limits, ``time_s`` the autopilot's time since boot of
-    the sample, ``received_s`` our monotonic clock when it arrived, ``source`` the message name.
+    the sample, ``received_s`` our monotonic clock when it arrived, ``source`` the message name, ``local_ne`` the
+    vehicle's latest local position (autopilot's NED frame, north and east m) when it arrived and ``local_down_m``
+    its down coordinate (None: not known): the scan is placed there, not where the vehicle is when the mission gets
+    round to it (a poll later), and a scan taken low (climbing, landing) can be told apart. ``bearing_error_rad``
+    is how far the bearings may be off: 0 for a north-aligned scan, :data:`HEADING_LAG_RAD` for one turned by the
+    heading (the latest ATTITUDE lags a yawing vehicle).
     """
 
     bearings_rad: np.ndarray
@@ -60,6 +69,9 @@ class RangeScan:
     time_s: float
     received_s: float
     source: str
+    local_ne: tuple[float, float] | None = None
+    local_down_m: float | None = None
+    bearing_error_rad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -106,7 +118,8 @@ def scan_from_obstacle_distance(msg, received_s: float, heading_rad: float) -> R
     distances = np.array([_cm_to_m(v, msg.min_distance, msg.max_distance, empty_at_max=False) for v in raw])
     bearings = (base + np.radians(float(msg.angle_offset) + increment * np.arange(count))) % _TWO_PI
     return RangeScan(bearings, math.radians(increment) / 2.0, distances, msg.min_distance / 100.0,
-                     msg.max_distance / 100.0, msg.time_usec * 1e-6, received_s, "OBSTACLE_DISTANCE")
+                     msg.max_distance / 100.0, msg.time_usec * 1e-6, received_s, "OBSTACLE_DISTANCE",
+                     bearing_error_rad=HEADING_LAG_RAD if msg.frame == mavlink.MAV_FRAME_BODY_FRD else 0.0)
 
 
 def reading_from_distance_sensor(msg, received_s: float, heading_rad: float) -> RangeScan | HeightReading | None:
@@ -130,7 +143,8 @@ def reading_from_distance_sensor(msg, received_s: float, heading_rad: float) -> 
     distance = _cm_to_m(msg.current_distance, msg.min_distance, msg.max_distance, empty_at_max=True)
     bearing = (heading_rad + math.radians(deg)) % _TWO_PI
     return RangeScan(np.array([bearing]), half, np.array([distance]), msg.min_distance / 100.0,
-                     msg.max_distance / 100.0, msg.time_boot_ms * 1e-3, received_s, "DISTANCE_SENSOR")
+                     msg.max_distance / 100.0, msg.time_boot_ms * 1e-3, received_s, "DISTANCE_SENSOR",
+                     bearing_error_rad=HEADING_LAG_RAD)
 
 
 def translate_sensor(msg, received_s: float, heading_rad: float) -> RangeScan | HeightReading | None:
@@ -161,14 +175,67 @@ class SensorFeed:
         self.scans = 0
         self.last_scan_s = math.nan
         self.height: HeightReading | None = None
+        self.turning_dropped = 0
+        self._heading: tuple[float, float] | None = None  # (heading_rad, time_s) when it last changed
+        self._yaw_rate_rad_s = 0.0
 
-    def handle(self, msg, received_s: float, heading_rad: float) -> bool:
-        """Translate and queue ``msg`` if it is a sensor message; True if it was one."""
+    #: Above this yaw rate (rad/s) heading-relative sectors are dropped: the heading that turns them lags.
+    MAX_YAW_RATE_RAD_S = math.radians(30.0)
+    #: A scan more than this (s) from the latest local position sample keeps that position as it is (an autopilot
+    #: whose scans carry another clock, e.g. UNIX time, is not moved kilometres).
+    MAX_EXTRAPOLATION_S = 0.5
+
+    def _note_heading(self, heading_rad: float, reading) -> None:
+        """Track the yaw rate from the headings the readings came with (their sample times)."""
+        t = float(getattr(reading, "time_s", math.nan))
+        if not (math.isfinite(heading_rad) and math.isfinite(t)):
+            return
+        if self._heading is None:
+            self._heading = (heading_rad, t)
+            return
+        h0, t0 = self._heading
+        turned = abs((heading_rad - h0 + math.pi) % _TWO_PI - math.pi)
+        if turned > 1e-6 and t > t0:
+            self._yaw_rate_rad_s = turned / (t - t0)
+            self._heading = (heading_rad, t)
+        elif t - t0 > 0.5:  # the heading has held for half a second: not turning
+            self._yaw_rate_rad_s = 0.0
+
+    @property
+    def turning(self) -> bool:
+        """True while the vehicle yaws faster than :attr:`MAX_YAW_RATE_RAD_S`."""
+        return self._yaw_rate_rad_s > self.MAX_YAW_RATE_RAD_S
+
+    def handle(self, msg, received_s: float, heading_rad: float,
+               local_ne: tuple[float, float] | None = None, local_down_m: float | None = None, *,
+               local_time_s: float = math.nan, local_velocity_ned: tuple[float, float, float] | None = None) -> bool:
+        """Translate and queue ``msg`` if it is a sensor message; True if it was one.
+
+        ``local_ne``, ``local_down_m``: the vehicle's latest local position (m), sampled at ``local_time_s`` (the
+        autopilot's seconds since boot) and moving at ``local_velocity_ned`` (m/s). A horizontal scan is stamped
+        with where the vehicle was at the scan's own time: that position moved on by the velocity for the
+        difference, up to :attr:`MAX_EXTRAPOLATION_S` (the two messages are not sampled together: 0.3 s apart at
+        10 m/s is 3 m, and a building's face read from 3 m back looks like a new obstacle in front of it)."""
         if msg.get_type() not in self.MESSAGES:
             return False
         reading = translate_sensor(msg, received_s, heading_rad)
         if reading is None:
             return True
+        self._note_heading(heading_rad, reading)
+        if isinstance(reading, RangeScan) and reading.bearing_error_rad > 0 and self.turning:
+            self.turning_dropped += 1  # a heading-relative sector while the heading swings: not placed at all
+            return True
+        if isinstance(reading, RangeScan) and local_ne is not None and all(map(math.isfinite, local_ne)):
+            n, e = float(local_ne[0]), float(local_ne[1])
+            down = float(local_down_m) if local_down_m is not None and math.isfinite(local_down_m) else None
+            dt = reading.time_s - local_time_s
+            if local_velocity_ned is not None and abs(dt) <= self.MAX_EXTRAPOLATION_S:  # False while NaN
+                vn, ve, vd = (float(v) for v in local_velocity_ned)
+                if math.isfinite(vn) and math.isfinite(ve):
+                    n, e = n + vn * dt, e + ve * dt
+                if down is not None and math.isfinite(vd):
+                    down += vd * dt
+            reading = dataclasses.replace(reading, local_ne=(n, e), local_down_m=down)
         with self._cond:
             if isinstance(reading, HeightReading):
                 self.height = reading

@@ -22,6 +22,7 @@ ARDUPILOT_GROUPS = {
     "SYS_STATUS": (mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,),
     "GPS_RAW_INT": (mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,),
     "EXTENDED_SYS_STATE": (mavlink.MAV_DATA_STREAM_EXTENDED_STATUS, mavlink.MAV_DATA_STREAM_EXTRA3),
+    "DISTANCE_SENSOR": (mavlink.MAV_DATA_STREAM_EXTRA3,),
 }
 
 
@@ -55,6 +56,16 @@ class StreamKeeper:
         self._streams = {
             name: _Stream(name, getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), float(hz)) for name, hz in rates_hz.items()
         }
+
+    def add(self, name: str, rate_hz: float) -> None:
+        """Keep ``name`` at ``rate_hz`` from now on (a stream worth asking for only once the autopilot shows it has
+        the sensor behind it).
+
+        >>> k = StreamKeeper({}); k.add("DISTANCE_SENSOR", 10.0); [s.name for s in k.due(now_s=0.0)]
+        ['DISTANCE_SENSOR']
+        """
+        stream = _Stream(name, getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), float(rate_hz))
+        self._streams = {**self._streams, name: stream}  # a new dict: other threads may be iterating the old one
 
     def __contains__(self, name: str) -> bool:
         return name in self._streams

@@ -103,6 +103,7 @@ class Telemetry:
     battery_voltage_v: float = _NAN
     battery_remaining_pct: float = _NAN
     prearm_ok: bool | None = None
+    range_sensors: bool = False  # SYS_STATUS reports a proximity sensor or a laser rangefinder present
     home: Geodetic | None = None
     origin: Geodetic | None = None
     gps_fix_type: int = -1
@@ -223,10 +224,13 @@ def telemetry_from_extended_sys_state(t: Telemetry, msg, now_s: float) -> Teleme
 
 
 def telemetry_from_sys_status(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Battery (mV -> V, -1 unknown -> NaN) and the pre-arm check bit when the autopilot reports it."""
+    """Battery (mV -> V, -1 unknown -> NaN), the pre-arm check bit when the autopilot reports it, and whether a
+    proximity sensor or a laser rangefinder is present (ArduPilot then sends DISTANCE_SENSOR when asked)."""
     prearm = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    ranging = mavlink.MAV_SYS_STATUS_SENSOR_PROXIMITY | mavlink.MAV_SYS_STATUS_SENSOR_LASER_POSITION
     return dataclasses.replace(
         t,
+        range_sensors=bool(msg.onboard_control_sensors_present & ranging),
         battery_voltage_v=msg.voltage_battery * 1e-3 if msg.voltage_battery != 65535 else _NAN,
         battery_remaining_pct=float(msg.battery_remaining) if msg.battery_remaining >= 0 else _NAN,
         prearm_ok=bool(msg.onboard_control_sensors_health & prearm)

@@ -9,6 +9,9 @@ Positions are in the map frame: the autopilot's local NED position plus the vehi
 as the mission does). Sensing and exploration work that keeps ``discovered_obstacles`` (``(N, 6)`` boxes),
 ``known_area`` (a dict, see :mod:`skyroute.view.live`) or ``frontiers`` (``(F, 2)`` north/east points) as public
 attributes of the mission gets them drawn; a replan that replaces ``result.waypoints`` shows as a new plan.
+The mission keeps ``discovered_obstacles`` (the live layer's observed obstacle cells as 1 m boxes, see
+``skyroute.flight.replanning``) and sets ``result.waypoints`` to each replanned route, so a sensing flight shows
+both; exploration (issue 12) adds ``known_area`` and ``frontiers`` the same way.
 """
 
 from __future__ import annotations

@@ -1,0 +1,179 @@
+"""In-flight replanning with the mission's fake vehicle: it carries a range sensor that sees the TRUE city (the
+sim's own sector model), while the mission plans on a stale map. The live layer and replanner are the real ones."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sim.sensors import sector_minima
+from skyroute.cityedit import enclose_goal
+from skyroute.flight import mission as m
+from skyroute.flight.mission import MissionEvent as E
+from skyroute.flight.mission import MissionState as S
+from skyroute.planning.cspace import create_grid
+from skyroute.planning.errors import PlanningError
+from skyroute.planning.grid import GridMap
+from skyroute.planning.livemap import LiveMap
+from skyroute.planning.replan import Replanner
+
+from .test_mission import OFFSET, FakeClock, FakeVehicle, make_mission
+
+ALT, SAFETY = 10.0, 3.0
+#: Four 60 m blocks in a 2 x 2 grid, 20 m streets between and round them; posts fix a 200 m extent.
+STALE = np.array([[n, e, 15.0, 30.0, 30.0, 15.0] for n in (-40.0, 40.0) for e in (-40.0, 40.0)]
+                 + [[-99.5, -99.5, 0.5, 0.5, 0.5, 0.5], [99.5, 99.5, 0.5, 0.5, 0.5, 0.5]])
+#: A wall across the central north-south street, north 19..21 (the stale map's route runs straight up it).
+WALL = np.array([[20.0, 0.0, 15.0, 1.0, 12.0, 15.0]])
+START, GOAL = (-85.0, 0.5), (85.0, 0.5)
+
+
+class SensingVehicle(FakeVehicle):
+    """The fake with a 72-sector OBSTACLE_DISTANCE-like sensor at 10 Hz of the fake clock, seeing ``truth``."""
+
+    def __init__(self, clock, truth, *, range_m=30.0, **kwargs):
+        super().__init__(clock, **kwargs)
+        lo, hi = truth[:, :3] - truth[:, 3:], truth[:, :3] + truth[:, 3:]
+        self.lo, self.hi, self.top = lo[:, :2], hi[:, :2], hi[:, 2]
+        self.range_m = range_m
+        self.queue = []
+        self.next_scan_s = 0.0
+        self.sensing = True
+        clock.tickers.append(self._scan)
+
+    def _scan(self, dt):
+        t = self.telemetry
+        if self.clock.now < self.next_scan_s or t.on_ground:
+            return
+        self.next_scan_s = self.clock.now + 0.1
+        n, e = t.north_m + OFFSET.north_m, t.east_m + OFFSET.east_m
+        tall = self.top >= -t.down_m
+        d = sector_minima(self.lo[tall], self.hi[tall], n, e, 72, 0.0, self.range_m)
+
+        class Scan:
+            bearings_rad = np.radians(np.arange(0.0, 360.0, 5.0))
+            half_width_rad = math.radians(2.5)
+            distances_m = d
+            max_range_m = self.range_m
+            received_s = self.clock.now
+
+        self.queue.append(Scan())
+
+    def sensor_readings(self):
+        out, self.queue = self.queue, []
+        return out
+
+
+def _plan_fn(calls):
+    gm = GridMap.build(STALE, ALT, SAFETY)
+
+    def plan(n, e):
+        calls.append((n, e))
+        return gm.plan((n, e), GOAL, snap_start=True).waypoints
+
+    return plan
+
+
+def _obstacles(goal=GOAL):
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    live = LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0])
+    return Replanner(live, goal, ALT)
+
+
+def _mission(vehicle, clock, obstacles, calls):
+    return make_mission(vehicle, clock, _plan_fn(calls), goal_ne=GOAL, obstacles=obstacles,
+                        replan_errors=(PlanningError,), replan_margin_m=SAFETY, leg_timeout_s=120.0)
+
+
+def _track_clearance(track: np.ndarray, boxes: np.ndarray) -> float:
+    lo, hi = boxes[:, :2] - boxes[:, 3:5], boxes[:, :2] + boxes[:, 3:5]
+    pts = track[:, 1:3]
+    gap = np.maximum(np.maximum(lo[None] - pts[:, None], pts[:, None] - hi[None]), 0.0)
+    return float(np.hypot(gap[..., 0], gap[..., 1]).min())
+
+
+def test_a_wall_across_the_route_is_seen_and_flown_round_to_the_goal():
+    clock = FakeClock()
+    truth = np.vstack([STALE, WALL])
+    v = SensingVehicle(clock, truth, start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    mission = _mission(v, clock, _obstacles(), calls=[])
+    result = mission.run()
+    assert result.completed and result.final_state is S.MANUAL
+    events = [e for _, e, _ in result.history]
+    assert E.PATH_BLOCKED in events and E.REPLANNED in events
+    i = events.index(E.PATH_BLOCKED)
+    assert result.history[i][0] is S.WAYPOINT and result.history[i][2] is S.REPLANNING
+    assert result.history[i + 1][1] is E.REPLANNED and result.history[i + 1][2] is S.WAYPOINT
+    assert result.landing_error_m < 0.5
+    assert _track_clearance(result.track, WALL) >= SAFETY - 1.0  # the fake cuts corners less than a real one
+    first = result.replans[0]
+    assert first.outcome == "replanned" and first.plan_ms > 0 and math.isfinite(first.latency_ms)
+    assert first.waypoints[0, :2] == pytest.approx((first.north_m, first.east_m))
+    assert len(mission.discovered_obstacles) > 0 and mission.discovered_obstacles.shape[1] == 6
+
+
+def test_without_replanning_the_same_flight_never_looks():
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    result = _mission(v, clock, None, calls=[]).run()  # --no-replan: the fake flies through the wall
+    assert E.PATH_BLOCKED not in [e for _, e, _ in result.history]
+    assert _track_clearance(result.track, WALL) == 0.0 and result.replans == []
+
+
+def test_a_goal_walled_in_holds_lands_at_the_nearest_reachable_safe_point_and_fails():
+    clock = FakeClock()
+    ring = enclose_goal(GOAL, ring_m=8.0, height_m=30.0)
+    v = SensingVehicle(clock, np.vstack([STALE, ring]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    mission = _mission(v, clock, _obstacles(), calls=[])
+    with pytest.raises(m.GoalUnreachableInFlight, match="cannot be reached|blocked") as info:
+        mission.run()
+    result = info.value.result
+    events = [e for _, e, _ in result.history]
+    assert E.GOAL_UNREACHABLE in events and not result.completed
+    assert result.final_state is S.MANUAL and not v.telemetry.armed and v.telemetry.on_ground
+    landed = result.track[-1, 1:3]
+    # Outside the ring's margin, on the near side: within the ring's reach plus a few metres of the goal.
+    ring_reach = 8.0 + 1.0 + SAFETY
+    assert ring_reach - 0.5 <= math.dist(landed, GOAL) <= ring_reach + 6.0
+    assert "instead of the goal" in str(info.value)
+
+
+def test_a_wall_seen_late_at_speed_makes_the_vehicle_brake_before_it_turns():
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), range_m=12.0, speed_mps=12.0,
+                       start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    result = _mission(v, clock, _obstacles(), calls=[]).run()
+    assert result.completed and any(r.braked for r in result.replans)
+    # every replan's latency is known: reading in -> the brake's first setpoint, or the new route's
+    assert all(math.isfinite(r.latency_ms) and r.latency_ms >= 0 for r in result.replans)
+
+
+@pytest.mark.parametrize("method", ["grid", "any-angle"])
+def test_each_replanning_method_flies_round_the_wall_with_free_legs(method):
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    obstacles = Replanner(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT, method=method)
+    result = _mission(v, clock, obstacles, calls=[]).run()
+    assert result.completed and result.replans
+    assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
+    assert result.landing_error_m < 0.5
+    if method == "any-angle":  # pulled taut: no waypoint on a straight run of the grid route is left
+        assert len(result.replans[-1].waypoints) <= len(
+            Replanner(obstacles.live, GOAL, ALT).replan(result.replans[-1].waypoints[0, :2]).waypoints)
+
+
+def test_the_command_lines_obstacle_map_serves_every_planner():
+    import motion_planning as mp
+    from skyroute.cli.flying import obstacle_map
+    from skyroute.cli.setting import load_setting
+    from skyroute.planning import PLANNERS
+
+    setting = load_setting(mp.DEFAULT_MAP, 5.0, 5.0)
+    for planner in PLANNERS:
+        replanner = obstacle_map(setting, (129.5, -57.5), planner)
+        assert replanner.method == ("any-angle" if planner == "any-angle" else "grid")
+        route = replanner.replan((0.5, 0.5))  # nothing observed yet: the map's own route
+        assert np.allclose(route.waypoints[-1, :2], (129.5, -57.5))

@@ -25,6 +25,8 @@ from skyroute import sfmap
 from skyroute.maps import read_colliders
 from tests import explore_oracle as oracle
 
+pytestmark = pytest.mark.flight  # a minute of flying: not in the fast subset
+
 RADIUS_M, ALT_M, SAFETY_M = 30.0, 5.0, 5.0
 
 

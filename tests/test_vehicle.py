@@ -322,12 +322,16 @@ def test_ardupilot_gcs_failsafe_counts_only_its_own_gcs_system():
     assert other.leaves_flying and "system 250" in other.link_loss
 
 
-def test_px4_defaults_hover_unless_a_loss_action_lands():
-    # PX4 1.15 defaults (read on SITL): COM_OF_LOSS_T 1.0, COM_OBL_RC_ACT 0, NAV_DLL_ACT 0, MPC_ACC_HOR 3
+def test_px4_defaults_land_without_rc_and_only_hold_leaves_the_vehicle_hovering():
+    # PX4 1.15 defaults (read on SITL): COM_OF_LOSS_T 1.0, COM_OBL_RC_ACT 0, NAV_DLL_ACT 0, MPC_ACC_HOR 3; after an
+    # offboard loss PX4 SITL (no RC) went to position mode, descended at 0.6 m/s and disarmed on landing
     stock = vh.flight_limits(vh.Autopilot.PX4, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 0.0, "NAV_DLL_ACT": 0.0,
                                                 "MPC_XY_VEL_MAX": 12.0, "MPC_ACC_HOR": 3.0, "MPC_XY_P": 0.95},
                               our_system=255)
-    assert stock.leaves_flying and (stock.cruise_mps, stock.accel_mps2) == (12.0, 3.0)
+    assert not stock.leaves_flying and "position mode" in stock.link_loss and "lands" in stock.link_loss
+    assert (stock.cruise_mps, stock.accel_mps2) == (12.0, 3.0)
+    hold = vh.flight_limits(vh.Autopilot.PX4, {"COM_OBL_RC_ACT": 5.0, "NAV_DLL_ACT": 0.0}, our_system=255)
+    assert hold.leaves_flying and "hovering" in hold.link_loss
     assert stock.hold_last_s == pytest.approx(1.0 / 0.95)  # the feed-forward overshoots by v / MPC_XY_P
     landing = vh.flight_limits(vh.Autopilot.PX4, {"COM_OBL_RC_ACT": 4.0}, our_system=255)
     assert not landing.leaves_flying and "Land" in landing.link_loss and "not reported" in landing.link_loss

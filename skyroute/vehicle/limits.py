@@ -12,7 +12,8 @@ Measured on the SITL binaries in ../shared/sitl (ArduCopter V4.7.0-dev, PX4 v1.1
   last one, then holds there: 5 m/s ended 20.5 m past the last target (5 x 3 s plus braking at WPNAV_ACCEL),
   settling back to 14 m. With FS_GCS_ENABLE = 0 (the default) it stays GUIDED and hovers there.
 - PX4 OFFBOARD holds the last position setpoint with its velocity feed-forward until COM_OF_LOSS_T (1 s), then
-  takes COM_OBL_RC_ACT (0: position mode, which hovers without RC): 5 m/s ended 6-7 m past the last target.
+  takes COM_OBL_RC_ACT: 5 m/s ended 6-7 m past the last target. With the default (0, position mode) and no RC,
+  PX4 then descends at ~0.6 m/s and lands where it is ("Landing detected", "Disarmed by landing": 5 m in ~8 s).
 """
 
 from __future__ import annotations
@@ -42,7 +43,9 @@ _FS_GCS_ACTIONS = {1: "RTL", 2: "RTL (or continue an AUTO mission)", 3: "SmartRT
 _PX4_OFFBOARD_LOSS = {0: "position mode", 1: "altitude mode", 2: "manual mode", 3: "Return", 4: "Land",
                       5: "Hold", 6: "terminate", 7: "disarm"}
 _PX4_DATALINK_LOSS = {0: "nothing", 1: "Hold", 2: "Return", 3: "Land", 5: "terminate", 6: "disarm"}
-_PX4_HOVERS = {0, 1, 2, 5}  # without RC these keep the vehicle hovering where it is
+_PX4_HOVERS = {5}  # Hold keeps the vehicle hovering where it is
+#: The manual modes need RC; without it PX4 descends and lands (measured for position mode on PX4 1.15 SITL).
+_PX4_MANUAL = {0, 1, 2}
 
 
 @dataclass(frozen=True)
@@ -134,6 +137,8 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
     flying = offboard in _PX4_HOVERS and datalink in (0, 1)
     if flying:
         link_loss += ": a lost link leaves the vehicle hovering"
+    elif offboard in _PX4_MANUAL:
+        link_loss += ": without RC a lost link lands the vehicle where it is"
     accel = get("MPC_ACC_HOR")
     return FlightLimits(
         cruise_mps=get("MPC_XY_VEL_MAX"), accel_mps2=accel, lateral_accel_mps2=0.9 * accel,

@@ -31,13 +31,15 @@ class FakeAutopilot:
     ``on_request_only``: stream LOCAL_POSITION_NED only after a SET_MESSAGE_INTERVAL for it; ``latency_s`` delays
     everything it sends; ``params`` {name: (value, MAV_PARAM_TYPE)} sent PX4-style (integers bytewise);
     ``foreign_acks``: answer each command first with an ack addressed to another ground station (255, 190);
-    ``other_system``: a second vehicle's heartbeat on the same link; ``key``: MAVLink 2 signing.
+    ``other_system``: a second vehicle's heartbeat on the same link; ``key``: MAVLink 2 signing; ``sensors_present``:
+    SYS_STATUS's present bits (ArduPilot sets PROXIMITY and LASER_POSITION for a configured proximity sensor and
+    rangefinder).
     """
 
     def __init__(self, autopilot=mavlink.MAV_AUTOPILOT_PX4, *, sysid=1, deny=None, temporary=None,
                  in_progress=None, silent=None, mav_type=None, send_heartbeat=True, send_positions=True,
                  on_request_only=False, latency_s=0.0, params=None, foreign_acks=False, other_system=None,
-                 key=None, deny_text=b"Preflight Fail: GPS not ready", ack_delay_s=0.0):
+                 key=None, deny_text=b"Preflight Fail: GPS not ready", ack_delay_s=0.0, sensors_present=0):
         self.autopilot, self.sysid = autopilot, sysid
         self.mav_type = mavlink.MAV_TYPE_QUADROTOR if mav_type is None else mav_type
         self.deny, self.temporary = dict(deny or {}), dict(temporary or {})
@@ -47,6 +49,7 @@ class FakeAutopilot:
         self.params = dict(params or {})
         self.foreign_acks, self.other_system, self.key = foreign_acks, other_system, key
         self.deny_text, self.ack_delay_s = deny_text, ack_delay_s
+        self.sensors_present = sensors_present
         self.unacked: dict[int, int] = {}  # command -> received but not yet answered
         self.overlaps: list[int] = []  # commands received while one of the same kind was still unanswered
         self.requested: set[int] = set()
@@ -153,6 +156,9 @@ class FakeAutopilot:
             if not self.on_request_only or mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED in self.requested:
                 self._send(enc, mavlink.MAVLink_local_position_ned_message(1000, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
             self._send(enc, mavlink.MAVLink_extended_sys_state_message(0, mavlink.MAV_LANDED_STATE_ON_GROUND))
+            present = self.sensors_present
+            self._send(enc, mavlink.MAVLink_sys_status_message(present, present, present, 0, 12600, -1, 90,
+                                                               0, 0, 0, 0, 0, 0))
 
     def _ack(self, enc, msg, result, delay_s=0.0):
         self._send(enc, mavlink.MAVLink_command_ack_message(msg.command, result, 0, 0, msg.get_srcSystem(),
@@ -267,6 +273,22 @@ def test_connect_detects_px4_and_requests_telemetry_as_a_companion_ground_statio
     assert ours and ours[0].type == mavlink.MAV_TYPE_GCS  # PX4 reports refusals only to a ground station
     assert (ours[0].get_srcSystem(), ours[0].get_srcComponent()) == (255, mavlink.MAV_COMP_ID_ONBOARD_COMPUTER)
     assert ap.received[0].get_msgbuf()[0] == 253  # MAVLink 2 from the first packet
+
+
+def test_distance_sensor_is_asked_for_only_from_an_autopilot_that_reports_a_range_sensor(fake, connect):
+    def asked_for_distance(ap) -> bool:
+        return mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR in {
+            int(m.param1) for m in ap.commands(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL)}
+
+    without = fake(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)  # ArduCopter SITL's defaults: no proximity, no rangefinder
+    connect(without.port)
+    assert wait_until(lambda: mavlink.MAVLINK_MSG_ID_SYS_STATUS in {
+        int(m.param1) for m in without.commands(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL)})
+    time.sleep(0.5)  # a few of the link's keeper rounds (0.25 s) with SYS_STATUS in hand
+    assert not asked_for_distance(without)
+    ranging = fake(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, sensors_present=mavlink.MAV_SYS_STATUS_SENSOR_PROXIMITY)
+    connect(ranging.port)
+    assert wait_until(lambda: asked_for_distance(ranging))
 
 
 def test_one_command_of_a_kind_in_flight_at_a_time(fake, connect):

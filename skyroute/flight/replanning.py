@@ -296,6 +296,9 @@ class ReplanningMixin:
         speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
         braked = not can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m)
         if braked:
+            log.info("braking first: %.1f m/s needs %.1f m to stop at %.1f m/s^2, %.1f m ahead (%s)", speed,
+                     braking_distance_m(speed, self.speeds.accel_mps2), self.speeds.accel_mps2, blockage.along_m,
+                     blockage.reason)
             self._brake()
         p = self._map_position()
         here = (p.north_m, p.east_m)

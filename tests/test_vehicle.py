@@ -324,7 +324,7 @@ def test_ardupilot_gcs_failsafe_counts_only_its_own_gcs_system():
 
 def test_px4_defaults_land_without_rc_and_only_hold_leaves_the_vehicle_hovering():
     # PX4 1.15 defaults (read on SITL): COM_OF_LOSS_T 1.0, COM_OBL_RC_ACT 0, NAV_DLL_ACT 0, MPC_ACC_HOR 3; after an
-    # offboard loss PX4 SITL (no RC) went to position mode, descended at 0.6 m/s and disarmed on landing
+    # offboard loss PX4 SITL (no RC) went to position mode, descended at 0.6-0.9 m/s and disarmed on landing
     stock = vh.flight_limits(vh.Autopilot.PX4, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 0.0, "NAV_DLL_ACT": 0.0,
                                                 "MPC_XY_VEL_MAX": 12.0, "MPC_ACC_HOR": 3.0, "MPC_XY_P": 0.95},
                               our_system=255)

@@ -156,6 +156,51 @@ def test_path_length():
     assert fp.path_length_m(np.array([[0, 0, 0], [3, 4, 0], [3, 4, 12]])) == pytest.approx(17.0)
 
 
+def test_a_one_point_path_is_that_point_with_no_direction():
+    p = fp.smooth_path(np.array([[3.0, 4.0, 5.0]]))  # a goal already reached: nothing to fly
+    position, tangent = p.point_at(2.0)
+    assert position.tolist() == [3.0, 4.0, 5.0] and tangent.tolist() == [0.0, 0.0, 0.0]
+    assert p.project((10.0, 10.0, 5.0)) == 0.0
+
+
+def test_point_at_is_exact_near_the_start_and_at_a_repeated_goal():
+    p = fp.smooth_path(L_PATH)
+    assert p.point_at(0.25)[0] == pytest.approx([0.25, 0.0, 5.0])  # a quarter metre up the first leg
+    # a planner that repeats the goal leaves a zero-length last segment: its end is still the goal
+    repeated = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [10.0, 0.0, 5.0]]))
+    position, tangent = repeated.point_at(repeated.length_m)
+    assert position.tolist() == [10.0, 0.0, 5.0] and tangent.tolist() == [0.0, 0.0, 0.0]
+
+
+def test_project_starts_from_the_path_start_and_searches_exactly_window_m_ahead():
+    p = fp.smooth_path(L_PATH)
+    assert p.project((0.0, 0.0, 5.0)) == 0.0  # the start, by default searched from 0 m
+    # collinear waypoints keep their points: segments start at 0, 30 and 30.5 m; the search takes every segment
+    # that starts within 30 m of from_s_m, no more
+    line = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [30.0, 0.0, 5.0], [30.5, 0.0, 5.0], [60.0, 0.0, 5.0]]))
+    assert line.project((60.0, 0.0, 5.0)) == pytest.approx(30.5)  # the segment from 30 m counts, from 30.5 not
+
+
+def test_project_finds_points_between_the_arcs_samples_and_never_goes_back_on_them():
+    p = fp.smooth_path(L_PATH)  # the corner's arc is sampled every ~0.45 m
+    arc = [j for j in range(len(p.points) - 1) if 0.0 < p.s_m[j] < p.waypoint_s_m[1] + 1.0
+           and p.s_m[j + 1] - p.s_m[j] < 1.0]
+    assert len(arc) >= 4
+    for j in arc:
+        s_mid = 0.5 * (p.s_m[j] + p.s_m[j + 1])
+        assert p.project(p.point_at(s_mid)[0]) == pytest.approx(s_mid, abs=1e-9)  # from 0 m: across the leg
+        # from a point of this segment, a position just behind it is not taken back
+        assert p.project(p.point_at(s_mid - 0.1)[0], from_s_m=s_mid) == pytest.approx(s_mid, abs=1e-9)
+
+
+def test_where_the_path_passes_over_itself_the_first_pass_counts():
+    # out 10 m north and straight back (a reversal keeps its corner): (5, 0) is on both passes
+    p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [0.0, 0.0, 5.0]]))
+    assert p.length_m == pytest.approx(20.0)
+    assert p.project((5.0, 0.0, 5.0)) == pytest.approx(5.0)  # the outbound pass, not the return at 15 m
+    assert p.project((5.0, 0.0, 5.0), from_s_m=10.0) == pytest.approx(15.0)  # once past the turn: the return
+
+
 # ------------------------------------------------------------------------------------------- steering
 def test_steer_leads_by_the_round_trip():
     # 100 m straight north at 10 m/s; the vehicle at 20 m, moving at 8 m/s

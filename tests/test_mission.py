@@ -1260,6 +1260,269 @@ def test_settling_just_outside_the_tolerance_lands_after_settle_s(clock):
     assert result.completed and result.landing_error_m == pytest.approx(0.4, abs=0.01)
 
 
+# ------------------------------------------------------- what the mutants of the mission showed unguarded
+def test_the_summary_names_recoveries_and_replans_only_when_there_were_some():
+    quiet = m.MissionResult(S.MANUAL, planned_length_m=120.0, flown_length_m=118.0, airborne_s=30.0,
+                            landing_error_m=0.1)
+    assert "recoveries" not in quiet.summary() and "replans" not in quiet.summary()
+    eventful = m.MissionResult(S.MANUAL, planned_length_m=120.0, flown_length_m=118.0, airborne_s=30.0,
+                               landing_error_m=0.1, recoveries=2, replans=["a", "b", "c"])
+    assert eventful.summary().endswith(", 2 recoveries, 3 replans")
+
+
+def standing(v, north_m=0.0, east_m=0.0, altitude_m=10.0, v_north_mps=0.0, v_east_mps=0.0):
+    """Put the fake at a map position (no offset before preflight) with a horizontal velocity."""
+    t = v.telemetry
+    t.north_m, t.east_m, t.down_m = north_m, east_m, -altitude_m
+    t.local_v_north_mps, t.local_v_east_mps = v_north_mps, v_east_mps
+
+
+@pytest.mark.parametrize("where, over_the_goal", [
+    (dict(north_m=2.0), False),  # 2 m north of it, standing still
+    (dict(east_m=2.0), False),
+    (dict(v_north_mps=2.0), False),  # over it, still flying north at 2 m/s
+    (dict(v_east_mps=2.0), False),
+    (dict(altitude_m=15.0), False),  # 5 m above it
+    (dict(north_m=0.5), True),  # the tolerances are inclusive: 0.5 m off, 0.25 m/s, 1 m vertically
+    (dict(east_m=0.5, v_north_mps=0.25), True),
+    (dict(altitude_m=11.0), True),
+])
+def test_over_the_goal_means_within_the_tolerance_horizontally_and_vertically_and_slow(clock, where, over_the_goal):
+    v = FakeVehicle(clock)
+    mission = make_mission(v, clock, straight_plan([]), goal_tolerance_m=0.5, stop_speed_mps=0.25)
+    standing(v, **where)
+    assert mission._at_goal(np.array([0.0, 0.0, 10.0, 0.0])) is over_the_goal
+
+
+@pytest.mark.parametrize("where, settles", [
+    (dict(north_m=0.7), True),  # within 1.5 x 0.5 m, still
+    (dict(north_m=-0.75), True),  # exactly 1.5 x the tolerance
+    (dict(north_m=0.6, v_east_mps=0.5), True),  # exactly 2 x the stop speed
+    (dict(north_m=0.6, v_east_mps=0.6), False),  # a little faster: not settling
+    (dict(north_m=0.6, v_north_mps=1.0), False),  # drifting through at 1 m/s
+    (dict(north_m=0.8), False),  # outside 1.5 x the tolerance
+])
+def test_a_vehicle_settled_near_the_goal_counts_after_exactly_settle_s(clock, where, settles):
+    v = FakeVehicle(clock)
+    mission = make_mission(v, clock, straight_plan([]), goal_tolerance_m=0.5, stop_speed_mps=0.25, settle_s=3.0)
+    standing(v, **where)
+    wp = np.array([0.0, 0.0, 10.0, 0.0])
+    answers = []
+    for now in (10.0, 11.0, 12.0, 12.5, 13.0):
+        clock.now = now
+        answers.append(mission._at_goal(wp))
+    assert answers == [False, False, False, False, settles]  # 3 s after the first look, not before
+
+
+@pytest.mark.parametrize("elapsed_s, autopilot_s, rate", [
+    (2.0, 20.0, 10.0),  # a simulator sped up 10 x
+    (1.0, 10.0, 10.0),
+    (2.0, 0.8, 0.4),  # one running slow
+    (0.1, 1.0, 1.0),  # too soon after the takeoff to tell
+    (2.0, 0.0, 1.0),  # a clock that stands still says nothing
+    (2.0, math.nan, 1.0),  # no clock at all: a real autopilot's pace
+])
+def test_the_autopilot_rate_is_its_clock_over_ours_since_the_takeoff(clock, elapsed_s, autopilot_s, rate):
+    v = FakeVehicle(clock)
+    mission = make_mission(v, clock, straight_plan([]))
+    mission._takeoff_s, mission._takeoff_autopilot_s = 5.0, 100.0  # the takeoff command at 5 s ours, 100 s its
+    clock.now = 5.0 + elapsed_s
+    v.telemetry.local_time_s = 100.0 + autopilot_s
+    assert mission._autopilot_rate() == pytest.approx(rate)
+
+
+def test_a_frame_jump_is_re_tied_after_two_readings_a_quarter_second_apart_and_a_glitch_is_not(clock):
+    v = FakeVehicle(clock)
+    base, j1, j2 = LocalNED(0.0, 0.0, 0.0), LocalNED(3.0, 0.0, 0.0), LocalNED(3.0, 3.0, 0.0)  # 3 m jumps count
+    # what map_offset_now reads at each time (s): a one-reading glitch, a jump that stays, a glitch, a jump
+    readings = {0.0: base, 0.25: j1, 0.5: base, 0.75: base, 1.0: j1, 1.25: j1, 1.5: j2, 1.75: j1, 2.0: j2,
+                2.25: j2, 2.5: j2}
+    expected = {0.0: base, 0.25: base, 0.5: base, 0.75: base, 1.0: base, 1.25: j1, 1.5: j1, 1.75: j1, 2.0: j1,
+                2.25: j2, 2.5: j2}
+    asked = []
+
+    def map_offset_now(origin, ground):
+        asked.append(origin)
+        return readings[clock.now]
+
+    v.map_offset_now, v.shift_setpoint = map_offset_now, lambda dn, de, dd: None
+    mission = make_mission(v, clock, straight_plan([]))
+    offsets = {}
+    for now in readings:
+        clock.now = now
+        mission._check_local_frame()
+        mission._check_local_frame()  # a second look within the quarter second reads nothing
+        offsets[now] = mission._offset
+    assert offsets == expected
+    assert asked == [ORIGIN] * len(readings)  # one reading per quarter second, of the map's origin
+
+
+def test_a_disarm_refused_for_a_while_is_retried_every_half_second_until_accepted(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.disarm_refusals = 20  # refused for 10 s at one try per 0.5 s, within the 15 s timeout
+    result = make_mission(v, clock, straight_plan([]), disarm_timeout_s=15.0).run()
+    assert result.completed and not v.telemetry.armed
+    assert v.calls.count("disarm") == 21
+
+
+def test_the_progress_lines_give_the_distance_left_and_the_speed_flown(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    seen = []  # each line with where the vehicle was (map) and how fast it moved then
+
+    def progress(line):
+        t = v.telemetry
+        seen.append((line, t.north_m + 100.0, t.east_m - 50.0, math.hypot(t.local_v_north_mps, t.local_v_east_mps)))
+
+    make_mission(v, clock, straight_plan([]), progress=progress, progress_every_s=1.0).run()
+    numbered = [(re.match(r"(?:flying: |waypoint \d/\d reached: )(\d+) m to go at ([\d.]+) m/s", line), n, e, speed)
+                for line, n, e, speed in seen]
+    numbered = [(float(x.group(1)), float(x.group(2)), n, e, speed) for x, n, e, speed in numbered if x]
+    assert len(numbered) >= 15
+    for to_go_m, said_mps, n, e, speed in numbered:
+        assert said_mps == pytest.approx(speed, abs=0.051)
+        if 55.0 < n and e < 5.0:
+            continue  # rounding the corner: the planned legs are no oracle for the distance there
+        left_m = (60.0 - n) + 40.0 if n < 59.0 else 40.0 - e  # along the planned legs: 60 m north, 40 m east
+        assert to_go_m == pytest.approx(left_m, abs=2.0)
+    east_leg = [said for to_go, said, n, e, speed in numbered if 5.0 < e < 35.0]
+    north_leg = [said for to_go, said, n, e, speed in numbered if 5.0 < n < 55.0]
+    assert east_leg and north_leg and min(east_leg + north_leg) > 4.0  # 5 m/s on both legs, not 0
+
+
+def biased_north(v, offset_north_m):
+    """The vehicle settles ``offset_north_m`` north of a position-only setpoint."""
+    real_goto = v.goto_local
+
+    def goto(north_m, east_m, down_m, yaw_rad, velocity_ned=None):
+        real_goto(north_m + (offset_north_m if velocity_ned is None else 0.0), east_m, down_m, yaw_rad, velocity_ned)
+
+    v.goto_local = goto
+
+
+def test_a_steady_offset_to_the_north_over_the_goal_is_trimmed_out(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    biased_north(v, 0.5)
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and result.landing_error_m <= 0.3
+    commanded_north = v.gotos[-1][0] - 0.5
+    assert -0.5 <= commanded_north - (60 - 100) <= -0.2  # told to hold south of the goal
+
+
+def test_a_legs_deadline_is_the_leg_timeout_plus_the_leg_at_the_minimum_speed(clock):
+    # 0.5 m/s where 1 m/s is the least expected: the 60 m north leg (at east 50 m) gets 5 s + 60 m / (1 m/s)
+    v = FakeVehicle(clock, start=(-100.0, 100.0), speed_mps=0.5)
+    with pytest.raises(m.FlightAborted, match=r"waypoint 1 \(60\.0 N, 50\.0 E, 10\.0 m\) not reached in time \(65 s\)"):
+        make_mission(v, clock, fixed_plan([]), leg_timeout_s=5.0, min_speed_mps=1.0, takeoff_timeout_s=100.0,
+                     poll_s=0.1).run()
+    # fast enough for the same leg: 5 m/s flies it in 12 s, well within; the last leg is 10 m east
+    v = FakeVehicle(clock, start=(-100.0, 100.0), speed_mps=5.0)
+    assert make_mission(v, clock, fixed_plan([]), leg_timeout_s=5.0, min_speed_mps=1.0).run().completed
+
+
+def test_the_corner_cut_and_the_speed_limits_given_shape_the_flight(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    result = make_mission(v, clock, straight_plan([]), corner_cut_m=2.0, lateral_accel_mps2=0.5,
+                          accel_mps2=0.5).run()
+    assert result.completed
+    corner = np.array([60.0, 0.0])
+    nearest_m = min(float(np.linalg.norm(row[1:3] - corner)) for row in result.track)
+    assert nearest_m == pytest.approx(2.0 * math.sqrt(2), abs=0.5)  # the arc's middle 2 m inside both legs
+    commands = [(np.array(g[:2]) + (100.0, -50.0), np.linalg.norm(vel[:2]))
+                for g, vel in zip(v.gotos, v.velocities, strict=True) if vel is not None]
+    radius_m = 2.0 / (1.0 - math.cos(math.pi / 4))
+    on_arc = [speed for at, speed in commands if np.linalg.norm(at - corner) < 4.0]
+    assert on_arc and max(on_arc) <= math.sqrt(0.5 * radius_m) + 0.3  # 1.85 m/s at 0.5 m/s^2 sideways
+    # braking at 0.5 m/s^2: 10 m before the arc the path allows sqrt(1.85^2 + 2 x 0.5 x 10) = 3.7 m/s
+    # braking at 0.5 m/s^2 towards the arc (it starts r tan 45 deg = r before the corner): at d m before it the path
+    # allows sqrt(1.85^2 + 2 x 0.5 x d)
+    before = [(60.0 - radius_m - at[0], speed) for at, speed in commands if 30.0 < at[0] < 60.0 - radius_m
+              and abs(at[1]) < 1.0]
+    assert len(before) > 20 and all(speed <= math.sqrt(0.5 * radius_m + 2 * 0.5 * d) + 0.3 for d, speed in before)
+
+
+def test_a_climbing_leg_is_flown_within_the_vertical_speed_given(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def climb(n, e):
+        return np.array([[n, e, 10.0, 0.0], [n + 60.0, e, 30.0, 0.0]])
+
+    assert make_mission(v, clock, climb, vertical_mps=0.5).run().completed
+    climbs = [-vel[2] for vel in v.velocities if vel is not None]
+    assert max(climbs) == pytest.approx(0.5, abs=0.05)
+
+
+def test_the_track_is_sampled_every_track_interval_s(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    result = make_mission(v, clock, straight_plan([]), track_interval_s=0.5).run()
+    steps = np.diff(result.track[:, 0])
+    assert len(result.track) == pytest.approx(result.flight_time_s / 0.5, abs=5)
+    assert np.median(steps) == pytest.approx(0.5, abs=0.03)
+
+
+def test_the_takeoff_from_a_roof_asks_for_the_height_above_the_roof(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.telemetry.amsl_at_zero_m = GROUND_AMSL_M + 8.0  # standing on an 8 m roof
+    asked = []
+    real_takeoff = v.takeoff
+    v.takeoff = lambda altitude_m: asked.append(altitude_m) or real_takeoff(altitude_m)
+    result = make_mission(v, clock, straight_plan([]), ground_amsl_m=GROUND_AMSL_M).run()
+    assert result.completed and asked == [pytest.approx(2.0)]  # to 10 m above the map's ground: 2 m above it
+
+
+def test_a_goal_next_to_the_start_or_at_it_is_flown_and_landed(clock):
+    for goal_north_m in (0.4, 0.0):  # 0.4 m: settling distance from the first look; 0: a plan of one waypoint
+        v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+        def plan(n, e, goal_north_m=goal_north_m):
+            if goal_north_m == 0.0:
+                return np.array([[n, e, 10.0, 0.0]])
+            return np.array([[n, e, 10.0, 0.0], [n + goal_north_m, e, 10.0, 0.0]])
+
+        result = make_mission(v, clock, plan).run()
+        assert result.completed and result.landing_error_m <= 0.3 and not v.telemetry.armed
+
+
+def test_a_vehicle_that_stops_following_is_noticed_after_stuck_s_and_given_up_on_after_max_recoveries(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    lines, retaken_at = [], []
+    clock.at(8.0, lambda: setattr(v, "speed_mps", 0.0))  # it stops following for good at 8 s
+    real_take = v.take_control
+    v.take_control = lambda: retaken_at.append(clock.now) or real_take()
+    with pytest.raises(m.FlightAborted, match="control lost 3 times, giving up.*landed"):
+        make_mission(v, clock, straight_plan([]), progress=lines.append, stuck_s=3.0, max_recoveries=2,
+                     accel_mps2=6.0).run()  # 6 m/s^2: its first command after each retake is over 1 m/s
+    assert len(retaken_at) == 2 and 11.0 <= retaken_at[0] <= 11.2  # standing still for 3 s, not at once
+    assert retaken_at[1] - retaken_at[0] >= 3.0
+    assert any("stopped following our setpoints" in line for line in lines)
+    assert not v.telemetry.armed and v.telemetry.on_ground
+
+
+def test_the_link_lost_while_arming_leaves_the_vehicle_on_the_ground(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    real_prepare = v.prepare_flight
+
+    def prepare_then_lose_the_link():
+        real_prepare()
+        v.link_ok = False
+
+    v.prepare_flight = prepare_then_lose_the_link
+    with pytest.raises(m.LinkLostInFlight, match="while arming; the vehicle is on the ground") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert err.value.result.final_state is S.FAILED and not v.telemetry.armed
+
+
+class Busy(Exception):
+    """A vehicle error that says nothing about being permanent (no ``permanent`` attribute)."""
+
+
+def test_an_arm_refusal_that_does_not_say_it_is_permanent_is_retried(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.fail_on["arm"] = Busy("busy")
+    result = make_mission(v, clock, straight_plan([]), vehicle_errors=(Refused, Busy)).run()
+    assert result.completed and v.calls.count("arm") == 2
+
+
+
 # ------------------------------------------------------------------------- missions against sim/
 # conftest's map: one building, north 25..35 m, east -5..5 m, 20 m tall, at the map origin 37.79248, -122.39745.
 SIM_ORIGIN = Geodetic(37.792480, -122.397450, 0.0)

@@ -1523,6 +1523,146 @@ def test_an_arm_refusal_that_does_not_say_it_is_permanent_is_retried(clock):
 
 
 
+def test_path_length_of_one_two_and_more_points():
+    assert fp.path_length_m(np.array([[1.0, 2.0, 3.0]])) == 0.0
+    assert fp.path_length_m(np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]])) == pytest.approx(5.0)
+
+
+def test_a_planner_of_integers_without_altitudes_gets_float_headings_and_the_flight_altitude(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def plan(n, e):  # plain Python numbers; NaN altitude: "fly at altitude_m"
+        return [[0, 0, math.nan, 0], [60, 0, math.nan, 0], [60, 40, 12, 0]]
+
+    result = make_mission(v, clock, plan, altitude_m=8.0).run()
+    assert result.completed
+    assert result.waypoints[:, 2].tolist() == [8.0, 8.0, 12.0]
+    assert result.waypoints[:, 3] == pytest.approx([0.0, 0.0, math.pi / 2])  # along each leg, not truncated
+    # planned: the climb to 8 m, the legs (60 m; 40 m rising 4 m), the descent from the last waypoint's 12 m
+    assert result.planned_length_m == pytest.approx(8.0 + 60.0 + math.hypot(40.0, 4.0) + 12.0)
+
+
+def test_repeated_progress_lines_come_once_per_progress_every_s(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0), arm_refusals=12)  # refused for 12 s at one try a second
+    times, lines = [], []
+
+    def progress(line):
+        times.append(clock.now)
+        lines.append(line)
+
+    result = make_mission(v, clock, straight_plan([]), progress=progress, progress_every_s=5.0).run()
+    assert result.completed
+    for prefix in ("arming refused", "flying:"):
+        at = [t for t, line in zip(times, lines, strict=True) if line.startswith(prefix)]
+        assert len(at) >= 2 and min(np.diff(at)) >= 5.0 - 1e-9, prefix
+    assert 2 <= sum(line.startswith("arming refused") for line in lines) <= 3  # 12 s of refusals: at 0, 5, 10 s
+
+
+def test_arming_gives_up_at_the_readiness_deadline_not_a_retry_later(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0), arm_refusals=10**6)
+    with pytest.raises(m.ArmingFailed):
+        make_mission(v, clock, straight_plan([]), arm_timeout_s=10.0, arm_retry_s=0.7).run()
+    assert clock.now == pytest.approx(10.0, abs=1e-9)  # the last wait is cut to the deadline
+
+
+def test_the_link_lost_while_waiting_for_readiness_is_reported_before_takeoff(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0), ready_at_s=30.0)
+    clock.at(2.0, lambda: setattr(v, "link_ok", False))
+    with pytest.raises(m.LinkLostInFlight, match="before takeoff"):
+        make_mission(v, clock, straight_plan([])).run()
+    assert "arm" not in v.calls
+
+
+def test_the_offset_line_says_whether_the_vehicle_stands_on_a_roof(clock):
+    said = {}
+    for name, kwargs, amsl in (("roof", dict(surface_fn=lambda n, e: 8.0 if abs(n) < 1 else 0.0), 8.0),
+                               ("given", dict(ground_amsl_m=GROUND_AMSL_M), 0.0)):
+        clock = FakeClock()
+        v = FakeVehicle(clock, start=(-100.0, 50.0))
+        v.telemetry.amsl_at_zero_m = GROUND_AMSL_M + amsl
+        lines = []
+        make_mission(v, clock, straight_plan([]), progress=lines.append, **kwargs).run()
+        said[name] = next(line for line in lines if line.startswith("map ground at"))
+    assert "(the vehicle stands on a 8.0 m roof)" in said["roof"]
+    assert "(the vehicle stands on the ground)" in said["given"]  # ground given outright: no roof measured
+
+
+def test_the_autopilots_response_time_makes_it_brake_earlier(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.limits.response_s = 0.8
+    mission = make_mission(v, clock, straight_plan([]))
+    assert mission.run().completed and mission.brake_lag_s == 0.8
+
+
+def test_an_outage_during_the_takeoff_is_ridden_out_and_the_mission_completes(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    outage(clock, v, 1.0, 2.0)  # climbing at 5 m/s: lost at 5 m
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and result.recoveries == 1 and result.replans == []
+
+
+def test_a_vertical_leg_keeps_the_heading_and_the_last_leg_follows_the_path(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def plan(n, e):  # up 10 m on the spot, then 30 m east, then 30 m north
+        return np.array([[n, e, 10.0, 0.0], [n, e, 20.0, 0.0], [n, e + 30.0, 20.0, 0.0],
+                         [n + 30.0, e + 30.0, 20.0, 0.0]])
+
+    takeoffs = []
+    real_takeoff = v.takeoff
+    v.takeoff = lambda altitude_m: takeoffs.append(altitude_m) or real_takeoff(altitude_m)
+    result = make_mission(v, clock, plan).run()
+    assert result.completed and takeoffs == [pytest.approx(10.0)]  # to the first waypoint, then up the leg
+    yaws = [g[3] for g in v.gotos]
+    assert all(isinstance(y, float) and math.isfinite(y) for y in yaws)
+    corners = np.array([[0.0, 0.0], [0.0, 30.0], [30.0, 30.0]])
+    streamed = [np.array(g[:2]) + (100.0, -50.0) for g, vel in zip(v.gotos, v.velocities, strict=True)
+                if vel is not None]
+    last_leg = [at for at in streamed if at[0] > 3.0 and np.linalg.norm(at - (30.0, 30.0)) > 5.0]
+    assert last_leg and max(_distance_to_polyline(at, corners) for at in last_leg) < 0.6  # on the path, not the goal
+
+
+def test_the_feedforward_never_coasts_into_a_wall_beyond_the_goal(clock):
+    # the goal 5 m short of a wall across the map; the autopilot coasts 3 s and brakes at 2.5 m/s^2 on a lost link
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def plan(n, e):
+        return np.array([[n, e, 10.0, 0.0], [n + 60.0, e, 10.0, 0.0]])
+
+    result = make_mission(v, clock, plan, clearance_fn=wall_north_at(65.0)).run()
+    assert result.completed
+    for g, vel in zip(v.gotos, v.velocities, strict=True):
+        if vel is not None:
+            north_m = g[0] + 100.0
+            assert north_m + v.limits.coast_m(float(np.linalg.norm(vel[:2]))) <= 65.0 + 1e-6
+
+
+def test_a_planner_of_plain_integers_gets_float_headings(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    result = make_mission(v, clock, lambda n, e: [[0, 0, 10, 0], [60, 0, 10, 0], [60, 40, 10, 0]]).run()
+    assert result.completed and result.waypoints[:, 3] == pytest.approx([0.0, 0.0, math.pi / 2])
+
+
+def test_a_vehicle_not_yet_standing_disarmed_on_the_ground_is_waited_for_with_a_line_every_5_s(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.telemetry.on_ground = False  # its estimator still says it moves; it settles at 11.1 s
+    clock.at(11.1, lambda: setattr(v.telemetry, "on_ground", True))
+    lines, planned_at = [], []
+    plan = straight_plan([])
+    result = make_mission(v, clock, lambda n, e: planned_at.append(clock.now) or plan(n, e),
+                          progress=lines.append).run()
+    assert result.completed
+    assert sum(line.startswith("waiting for the vehicle to stand disarmed") for line in lines) == 3  # 0, 5, 10 s
+    assert 11.1 <= planned_at[0] <= 11.1 + 0.2 + 1e-9  # looked at every 0.2 s
+
+
+def test_an_armed_vehicle_is_refused_as_armed(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.telemetry.armed = True  # armed on the ground
+    with pytest.raises(m.NotReady, match="the vehicle is armed: a mission starts from a vehicle disarmed"):
+        make_mission(v, clock, straight_plan([]), arm_timeout_s=2.0).run()
+
+
 # ------------------------------------------------------------------------- missions against sim/
 # conftest's map: one building, north 25..35 m, east -5..5 m, 20 m tall, at the map origin 37.79248, -122.39745.
 SIM_ORIGIN = Geodetic(37.792480, -122.397450, 0.0)

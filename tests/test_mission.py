@@ -193,6 +193,20 @@ def test_project_finds_points_between_the_arcs_samples_and_never_goes_back_on_th
         assert p.project(p.point_at(s_mid - 0.1)[0], from_s_m=s_mid) == pytest.approx(s_mid, abs=1e-9)
 
 
+def test_a_single_straight_leg_ends_at_its_end_and_brakes_to_it():
+    p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0]]), cruise_mps=10.0, accel_mps2=3.0)
+    assert p.point_at(10.0)[0].tolist() == [10.0, 0.0, 5.0] and p.point_at(25.0)[0].tolist() == [10.0, 0.0, 5.0]
+    assert p.speed_at(5.0) == pytest.approx(math.sqrt(2 * 3.0 * 5.0))  # braking to the end from 5 m out
+    assert p.speed_at(9.5) == pytest.approx(math.sqrt(2 * 3.0 * 0.5))  # and in its last metre
+
+
+def test_leg_headings_are_clockwise_from_north_for_legs_of_half_a_metre_or_more():
+    wps = np.array([[0.0, 0.0], [0.0, -10.0], [0.0, -9.0], [0.0, -8.5], [0.0, -8.3]])  # west 10 m, east 1, 0.5, 0.2
+    assert fp.leg_headings(wps) == pytest.approx([1.5 * math.pi, 1.5 * math.pi, 0.5 * math.pi, 0.5 * math.pi,
+                                                 0.5 * math.pi])  # the 0.2 m leg keeps the heading before it
+    assert fp.leg_headings(np.array([[1.0, 1.0]])).tolist() == [0.0]  # one waypoint: north
+
+
 def test_where_the_path_passes_over_itself_the_first_pass_counts():
     # out 10 m north and straight back (a reversal keeps its corner): (5, 0) is on both passes
     p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [0.0, 0.0, 5.0]]))
@@ -1335,10 +1349,10 @@ def test_a_frame_jump_is_re_tied_after_two_readings_a_quarter_second_apart_and_a
     v = FakeVehicle(clock)
     base, j1, j2 = LocalNED(0.0, 0.0, 0.0), LocalNED(3.0, 0.0, 0.0), LocalNED(3.0, 3.0, 0.0)  # 3 m jumps count
     # what map_offset_now reads at each time (s): a one-reading glitch, a jump that stays, a glitch, a jump
-    readings = {0.0: base, 0.25: j1, 0.5: base, 0.75: base, 1.0: j1, 1.25: j1, 1.5: j2, 1.75: j1, 2.0: j2,
-                2.25: j2, 2.5: j2}
-    expected = {0.0: base, 0.25: base, 0.5: base, 0.75: base, 1.0: base, 1.25: j1, 1.5: j1, 1.75: j1, 2.0: j1,
-                2.25: j2, 2.5: j2}
+    readings = {-0.25: j1, 0.0: base, 0.25: j1, 0.5: base, 0.75: base, 1.0: j1, 1.25: j1, 1.5: j2, 1.75: j1,
+                2.0: j2, 2.25: j2, 2.5: j2}  # the very first reading is a glitch too
+    expected = {-0.25: base, 0.0: base, 0.25: base, 0.5: base, 0.75: base, 1.0: base, 1.25: j1, 1.5: j1, 1.75: j1,
+                2.0: j1, 2.25: j2, 2.5: j2}
     asked = []
 
     def map_offset_now(origin, ground):
@@ -1480,6 +1494,7 @@ def test_a_goal_next_to_the_start_or_at_it_is_flown_and_landed(clock):
 
         result = make_mission(v, clock, plan).run()
         assert result.completed and result.landing_error_m <= 0.3 and not v.telemetry.armed
+        assert result.waypoints[0, 3] == 0.0  # no leg to turn to: north
 
 
 def test_a_vehicle_that_stops_following_is_noticed_after_stuck_s_and_given_up_on_after_max_recoveries(clock):
@@ -1521,6 +1536,17 @@ def test_an_arm_refusal_that_does_not_say_it_is_permanent_is_retried(clock):
     result = make_mission(v, clock, straight_plan([]), vehicle_errors=(Refused, Busy)).run()
     assert result.completed and v.calls.count("arm") == 2
 
+
+
+def test_any_positive_altitude_is_accepted_even_below_a_metre(clock):
+    assert make_mission(FakeVehicle(clock), clock, straight_plan([]), altitude_m=0.5).altitude_m == 0.5
+
+
+def test_the_first_setpoint_after_the_takeoff_is_the_start_of_the_path(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    assert make_mission(v, clock, straight_plan([])).run().completed
+    first = v.gotos[0]
+    assert (first[0] + 100.0, first[1] - 50.0, -first[2]) == pytest.approx((0.0, 0.0, 10.0), abs=0.3)
 
 
 def test_path_length_of_one_two_and_more_points():

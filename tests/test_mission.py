@@ -201,10 +201,73 @@ def test_a_single_straight_leg_ends_at_its_end_and_brakes_to_it():
 
 
 def test_leg_headings_are_clockwise_from_north_for_legs_of_half_a_metre_or_more():
-    wps = np.array([[0.0, 0.0], [0.0, -10.0], [0.0, -9.0], [0.0, -8.5], [0.0, -8.3]])  # west 10 m, east 1, 0.5, 0.2
-    assert fp.leg_headings(wps) == pytest.approx([1.5 * math.pi, 1.5 * math.pi, 0.5 * math.pi, 0.5 * math.pi,
-                                                 0.5 * math.pi])  # the 0.2 m leg keeps the heading before it
+    wps = np.array([[0.0, 0.0], [0.0, -10.0], [0.0, -9.0], [0.5, -9.0], [0.5, -8.8]])  # W 10 m, E 1, N 0.5, E 0.2
+    assert fp.leg_headings(wps) == pytest.approx([1.5 * math.pi, 1.5 * math.pi, 0.5 * math.pi, 0.0,
+                                                 0.0])  # the 0.2 m leg keeps the heading before it
     assert fp.leg_headings(np.array([[1.0, 1.0]])).tolist() == [0.0]  # one waypoint: north
+
+
+def _corner(turn_deg, leg_m):
+    """Waypoints: ``leg_m`` north to a corner at (leg_m, 0), then ``leg_m`` turning right by ``turn_deg``."""
+    out = np.array([math.cos(math.radians(turn_deg)), math.sin(math.radians(turn_deg)), 0.0])
+    corner = np.array([leg_m, 0.0, 5.0])
+    return np.array([[0.0, 0.0, 5.0], corner, corner + leg_m * out]), corner, out
+
+
+@pytest.mark.parametrize("turn_deg, leg_m, tangent_m", [
+    (120.0, 40.0, 0.5 / (1 - math.cos(math.radians(60))) * math.tan(math.radians(60))),  # r = 1 m, 1.73 m out
+    (60.0, 40.0, 0.5 / (1 - math.cos(math.radians(30))) * math.tan(math.radians(30))),  # r = 3.73 m, 2.15 m out
+    (60.0, 2.0, 1.0),  # short legs: the tangent points at half the shorter leg
+    (90.0, 0.8, 0.4),  # legs under a metre are rounded too
+])
+def test_any_corner_is_rounded_by_an_arc_tangent_to_both_legs_within_the_cut(turn_deg, leg_m, tangent_m):
+    wps, corner, out = _corner(turn_deg, leg_m)
+    p = fp.smooth_path(wps, corner_cut_m=0.5)
+    u_in = np.array([1.0, 0.0, 0.0])
+    assert p.points[1] == pytest.approx(corner - tangent_m * u_in)  # the arc leaves the first leg here
+    assert p.points[-2] == pytest.approx(corner + tangent_m * out)  # and joins the second here
+    half = math.radians(turn_deg) / 2
+    radius_m = tangent_m / math.tan(half)
+    cut_m = radius_m * (1 - math.cos(half))  # the arc's middle from both legs (0.5 m unless the legs are short)
+    assert max(_distance_to_polyline(q, wps) for q in p.points) <= cut_m + 1e-9
+    chords = np.linalg.norm(np.diff(p.points[1:-1], axis=0), axis=1)
+    assert chords.min() > 0 and chords == pytest.approx(chords[0])  # evenly sampled, no repeated point
+    assert len(p.waypoint_s_m) == 3  # one per waypoint; the corner's at the arc's middle (to half a sample)
+    assert p.waypoint_s_m[1] == pytest.approx(0.5 * (p.s_m[1] + p.s_m[-2]), abs=0.5 * chords[0] + 1e-9)
+
+
+def test_one_waypoint_gives_one_point_and_one_waypoint_arc_length():
+    p = fp.smooth_path(np.array([[3.0, 4.0, 5.0]]))
+    assert p.points.tolist() == [[3.0, 4.0, 5.0]] and p.waypoint_s_m.tolist() == [0.0]
+
+
+def test_short_steep_segments_are_held_to_the_vertical_speed():
+    # 0.5 m along and 0.5 m up: the vertical limit (1.5 m/s up) allows 1.5 x 0.707 / 0.5 = 2.12 m/s along it
+    p = fp.smooth_path(np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.5]]), vertical_mps=1.5, cruise_mps=10.0)
+    assert p.segment_speed_mps == pytest.approx([1.5 * math.sqrt(0.5) / 0.5])
+    # a level leg, then a climbing one: each segment judged by its own climb
+    p = fp.smooth_path(np.array([[0.0, 0.0, 0.0], [40.0, 0.0, 0.0], [80.0, 0.0, 30.0]]), vertical_mps=1.5,
+                       cruise_mps=10.0)
+    assert p.segment_speed_mps[0] == 10.0 and p.segment_speed_mps[-1] == pytest.approx(1.5 * 50.0 / 30.0)
+    assert p.point_speed_mps[0] == 10.0  # the start: the first segment's speed
+
+
+def test_braking_is_planned_back_over_every_point_before_a_slow_part():
+    # a collinear waypoint at 10 m, then the right angle at 20 m: braking for the arc starts before the waypoint
+    p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [20.0, 0.0, 5.0], [20.0, 20.0, 5.0]]),
+                       corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
+    r = 1.0 + 1.0 / math.sqrt(2)
+    v_turn = math.sqrt(3.0 * r)
+    assert p.speed_at(5.0) == pytest.approx(math.sqrt(v_turn**2 + 2 * 3.0 * (20.0 - r - 5.0)))
+    assert p.speed_at(12.0) == pytest.approx(math.sqrt(v_turn**2 + 2 * 3.0 * (20.0 - r - 12.0)))
+    # a collinear waypoint 1 m before the goal: braking to the goal starts before it
+    p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [11.0, 0.0, 5.0]]), accel_mps2=3.0)
+    assert p.speed_at(5.0) == pytest.approx(math.sqrt(2 * 3.0 * 6.0))
+    # a steep climb first, then two level legs: the level legs are not held to the climb's speed
+    p = fp.smooth_path(np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 3.0], [40.0, 0.0, 3.0], [40.0, 40.0, 3.0]]),
+                       corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
+    arc_s = p.waypoint_s_m[2] - 3 * 2 * r * math.sin(math.radians(7.5))  # where the second corner's arc starts
+    assert p.speed_at(arc_s - 5.0) == pytest.approx(math.sqrt(v_turn**2 + 2 * 3.0 * 5.0))
 
 
 def test_where_the_path_passes_over_itself_the_first_pass_counts():

@@ -156,6 +156,128 @@ def test_path_length():
     assert fp.path_length_m(np.array([[0, 0, 0], [3, 4, 0], [3, 4, 12]])) == pytest.approx(17.0)
 
 
+def test_a_one_point_path_is_that_point_with_no_direction():
+    p = fp.smooth_path(np.array([[3.0, 4.0, 5.0]]))  # a goal already reached: nothing to fly
+    position, tangent = p.point_at(2.0)
+    assert position.tolist() == [3.0, 4.0, 5.0] and tangent.tolist() == [0.0, 0.0, 0.0]
+    assert p.project((10.0, 10.0, 5.0)) == 0.0
+
+
+def test_point_at_is_exact_near_the_start_and_at_a_repeated_goal():
+    p = fp.smooth_path(L_PATH)
+    assert p.point_at(0.25)[0] == pytest.approx([0.25, 0.0, 5.0])  # a quarter metre up the first leg
+    # a planner that repeats the goal leaves a zero-length last segment: its end is still the goal
+    repeated = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [10.0, 0.0, 5.0]]))
+    position, tangent = repeated.point_at(repeated.length_m)
+    assert position.tolist() == [10.0, 0.0, 5.0] and tangent.tolist() == [0.0, 0.0, 0.0]
+
+
+def test_project_starts_from_the_path_start_and_searches_exactly_window_m_ahead():
+    p = fp.smooth_path(L_PATH)
+    assert p.project((0.0, 0.0, 5.0)) == 0.0  # the start, by default searched from 0 m
+    # collinear waypoints keep their points: segments start at 0, 30 and 30.5 m; the search takes every segment
+    # that starts within 30 m of from_s_m, no more
+    line = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [30.0, 0.0, 5.0], [30.5, 0.0, 5.0], [60.0, 0.0, 5.0]]))
+    assert line.project((60.0, 0.0, 5.0)) == pytest.approx(30.5)  # the segment from 30 m counts, from 30.5 not
+
+
+def test_project_finds_points_between_the_arcs_samples_and_never_goes_back_on_them():
+    p = fp.smooth_path(L_PATH)  # the corner's arc is sampled every ~0.45 m
+    arc = [j for j in range(len(p.points) - 1) if 0.0 < p.s_m[j] < p.waypoint_s_m[1] + 1.0
+           and p.s_m[j + 1] - p.s_m[j] < 1.0]
+    assert len(arc) >= 4
+    for j in arc:
+        s_mid = 0.5 * (p.s_m[j] + p.s_m[j + 1])
+        assert p.project(p.point_at(s_mid)[0]) == pytest.approx(s_mid, abs=1e-9)  # from 0 m: across the leg
+        # from a point of this segment, a position just behind it is not taken back
+        assert p.project(p.point_at(s_mid - 0.1)[0], from_s_m=s_mid) == pytest.approx(s_mid, abs=1e-9)
+
+
+def test_a_single_straight_leg_ends_at_its_end_and_brakes_to_it():
+    p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0]]), cruise_mps=10.0, accel_mps2=3.0)
+    assert p.point_at(10.0)[0].tolist() == [10.0, 0.0, 5.0] and p.point_at(25.0)[0].tolist() == [10.0, 0.0, 5.0]
+    assert p.speed_at(5.0) == pytest.approx(math.sqrt(2 * 3.0 * 5.0))  # braking to the end from 5 m out
+    assert p.speed_at(9.5) == pytest.approx(math.sqrt(2 * 3.0 * 0.5))  # and in its last metre
+
+
+def test_leg_headings_are_clockwise_from_north_for_legs_of_half_a_metre_or_more():
+    wps = np.array([[0.0, 0.0], [0.0, -10.0], [0.0, -9.0], [0.5, -9.0], [0.5, -8.8]])  # W 10 m, E 1, N 0.5, E 0.2
+    assert fp.leg_headings(wps) == pytest.approx([1.5 * math.pi, 1.5 * math.pi, 0.5 * math.pi, 0.0,
+                                                 0.0])  # the 0.2 m leg keeps the heading before it
+    assert fp.leg_headings(np.array([[1.0, 1.0]])).tolist() == [0.0]  # one waypoint: north
+
+
+def _corner(turn_deg, leg_m):
+    """Waypoints: ``leg_m`` north to a corner at (leg_m, 0), then ``leg_m`` turning right by ``turn_deg``."""
+    out = np.array([math.cos(math.radians(turn_deg)), math.sin(math.radians(turn_deg)), 0.0])
+    corner = np.array([leg_m, 0.0, 5.0])
+    return np.array([[0.0, 0.0, 5.0], corner, corner + leg_m * out]), corner, out
+
+
+@pytest.mark.parametrize("turn_deg, leg_m, tangent_m", [
+    (120.0, 40.0, 0.5 / (1 - math.cos(math.radians(60))) * math.tan(math.radians(60))),  # r = 1 m, 1.73 m out
+    (60.0, 40.0, 0.5 / (1 - math.cos(math.radians(30))) * math.tan(math.radians(30))),  # r = 3.73 m, 2.15 m out
+    (60.0, 2.0, 1.0),  # short legs: the tangent points at half the shorter leg
+    (90.0, 0.8, 0.4),  # legs under a metre are rounded too
+])
+def test_any_corner_is_rounded_by_an_arc_tangent_to_both_legs_within_the_cut(turn_deg, leg_m, tangent_m):
+    wps, corner, out = _corner(turn_deg, leg_m)
+    p = fp.smooth_path(wps, corner_cut_m=0.5)
+    u_in = np.array([1.0, 0.0, 0.0])
+    assert p.points[1] == pytest.approx(corner - tangent_m * u_in)  # the arc leaves the first leg here
+    assert p.points[-2] == pytest.approx(corner + tangent_m * out)  # and joins the second here
+    half = math.radians(turn_deg) / 2
+    radius_m = tangent_m / math.tan(half)
+    cut_m = radius_m * (1 - math.cos(half))  # the arc's middle from both legs (0.5 m unless the legs are short)
+    assert max(_distance_to_polyline(q, wps) for q in p.points) <= cut_m + 1e-9
+    chords = np.linalg.norm(np.diff(p.points[1:-1], axis=0), axis=1)
+    assert chords.min() > 0 and chords == pytest.approx(chords[0])  # evenly sampled, no repeated point
+    assert len(p.waypoint_s_m) == 3  # one per waypoint; the corner's at the arc's middle (to half a sample)
+    assert p.waypoint_s_m[1] == pytest.approx(0.5 * (p.s_m[1] + p.s_m[-2]), abs=0.5 * chords[0] + 1e-9)
+
+
+def test_one_waypoint_gives_one_point_and_one_waypoint_arc_length():
+    p = fp.smooth_path(np.array([[3.0, 4.0, 5.0]]))
+    assert p.points.tolist() == [[3.0, 4.0, 5.0]] and p.waypoint_s_m.tolist() == [0.0]
+
+
+def test_short_steep_segments_are_held_to_the_vertical_speed():
+    # 0.5 m along and 0.5 m up: the vertical limit (1.5 m/s up) allows 1.5 x 0.707 / 0.5 = 2.12 m/s along it
+    p = fp.smooth_path(np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.5]]), vertical_mps=1.5, cruise_mps=10.0)
+    assert p.segment_speed_mps == pytest.approx([1.5 * math.sqrt(0.5) / 0.5])
+    # a level leg, then a climbing one: each segment judged by its own climb
+    p = fp.smooth_path(np.array([[0.0, 0.0, 0.0], [40.0, 0.0, 0.0], [80.0, 0.0, 30.0]]), vertical_mps=1.5,
+                       cruise_mps=10.0)
+    assert p.segment_speed_mps[0] == 10.0 and p.segment_speed_mps[-1] == pytest.approx(1.5 * 50.0 / 30.0)
+    assert p.point_speed_mps[0] == 10.0  # the start: the first segment's speed
+
+
+def test_braking_is_planned_back_over_every_point_before_a_slow_part():
+    # a collinear waypoint at 10 m, then the right angle at 20 m: braking for the arc starts before the waypoint
+    p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [20.0, 0.0, 5.0], [20.0, 20.0, 5.0]]),
+                       corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
+    r = 1.0 + 1.0 / math.sqrt(2)
+    v_turn = math.sqrt(3.0 * r)
+    assert p.speed_at(5.0) == pytest.approx(math.sqrt(v_turn**2 + 2 * 3.0 * (20.0 - r - 5.0)))
+    assert p.speed_at(12.0) == pytest.approx(math.sqrt(v_turn**2 + 2 * 3.0 * (20.0 - r - 12.0)))
+    # a collinear waypoint 1 m before the goal: braking to the goal starts before it
+    p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [11.0, 0.0, 5.0]]), accel_mps2=3.0)
+    assert p.speed_at(5.0) == pytest.approx(math.sqrt(2 * 3.0 * 6.0))
+    # a steep climb first, then two level legs: the level legs are not held to the climb's speed
+    p = fp.smooth_path(np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 3.0], [40.0, 0.0, 3.0], [40.0, 40.0, 3.0]]),
+                       corner_cut_m=0.5, cruise_mps=10.0, accel_mps2=3.0, lateral_accel_mps2=3.0)
+    arc_s = p.waypoint_s_m[2] - 3 * 2 * r * math.sin(math.radians(7.5))  # where the second corner's arc starts
+    assert p.speed_at(arc_s - 5.0) == pytest.approx(math.sqrt(v_turn**2 + 2 * 3.0 * 5.0))
+
+
+def test_where_the_path_passes_over_itself_the_first_pass_counts():
+    # out 10 m north and straight back (a reversal keeps its corner): (5, 0) is on both passes
+    p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0], [0.0, 0.0, 5.0]]))
+    assert p.length_m == pytest.approx(20.0)
+    assert p.project((5.0, 0.0, 5.0)) == pytest.approx(5.0)  # the outbound pass, not the return at 15 m
+    assert p.project((5.0, 0.0, 5.0), from_s_m=10.0) == pytest.approx(15.0)  # once past the turn: the return
+
+
 # ------------------------------------------------------------------------------------------- steering
 def test_steer_leads_by_the_round_trip():
     # 100 m straight north at 10 m/s; the vehicle at 20 m, moving at 8 m/s
@@ -1213,6 +1335,421 @@ def test_settling_just_outside_the_tolerance_lands_after_settle_s(clock):
         else goto(60 - 100, 40 + 50 + 0.4, d, yaw)  # wherever the hold setpoint goes, it sits 0.4 m east
     result = make_mission(v, clock, straight_plan([])).run()
     assert result.completed and result.landing_error_m == pytest.approx(0.4, abs=0.01)
+
+
+# ------------------------------------------------------- what the mutants of the mission showed unguarded
+def test_the_summary_names_recoveries_and_replans_only_when_there_were_some():
+    quiet = m.MissionResult(S.MANUAL, planned_length_m=120.0, flown_length_m=118.0, airborne_s=30.0,
+                            landing_error_m=0.1)
+    assert "recoveries" not in quiet.summary() and "replans" not in quiet.summary()
+    eventful = m.MissionResult(S.MANUAL, planned_length_m=120.0, flown_length_m=118.0, airborne_s=30.0,
+                               landing_error_m=0.1, recoveries=2, replans=["a", "b", "c"])
+    assert eventful.summary().endswith(", 2 recoveries, 3 replans")
+
+
+def standing(v, north_m=0.0, east_m=0.0, altitude_m=10.0, v_north_mps=0.0, v_east_mps=0.0):
+    """Put the fake at a map position (no offset before preflight) with a horizontal velocity."""
+    t = v.telemetry
+    t.north_m, t.east_m, t.down_m = north_m, east_m, -altitude_m
+    t.local_v_north_mps, t.local_v_east_mps = v_north_mps, v_east_mps
+
+
+@pytest.mark.parametrize("where, over_the_goal", [
+    (dict(north_m=2.0), False),  # 2 m north of it, standing still
+    (dict(east_m=2.0), False),
+    (dict(v_north_mps=2.0), False),  # over it, still flying north at 2 m/s
+    (dict(v_east_mps=2.0), False),
+    (dict(altitude_m=15.0), False),  # 5 m above it
+    (dict(north_m=0.5), True),  # the tolerances are inclusive: 0.5 m off, 0.25 m/s, 1 m vertically
+    (dict(east_m=0.5, v_north_mps=0.25), True),
+    (dict(altitude_m=11.0), True),
+])
+def test_over_the_goal_means_within_the_tolerance_horizontally_and_vertically_and_slow(clock, where, over_the_goal):
+    v = FakeVehicle(clock)
+    mission = make_mission(v, clock, straight_plan([]), goal_tolerance_m=0.5, stop_speed_mps=0.25)
+    standing(v, **where)
+    assert mission._at_goal(np.array([0.0, 0.0, 10.0, 0.0])) is over_the_goal
+
+
+@pytest.mark.parametrize("where, settles", [
+    (dict(north_m=0.7), True),  # within 1.5 x 0.5 m, still
+    (dict(north_m=-0.75), True),  # exactly 1.5 x the tolerance
+    (dict(north_m=0.6, v_east_mps=0.5), True),  # exactly 2 x the stop speed
+    (dict(north_m=0.6, v_east_mps=0.6), False),  # a little faster: not settling
+    (dict(north_m=0.6, v_north_mps=1.0), False),  # drifting through at 1 m/s
+    (dict(north_m=0.8), False),  # outside 1.5 x the tolerance
+])
+def test_a_vehicle_settled_near_the_goal_counts_after_exactly_settle_s(clock, where, settles):
+    v = FakeVehicle(clock)
+    mission = make_mission(v, clock, straight_plan([]), goal_tolerance_m=0.5, stop_speed_mps=0.25, settle_s=3.0)
+    standing(v, **where)
+    wp = np.array([0.0, 0.0, 10.0, 0.0])
+    answers = []
+    for now in (10.0, 11.0, 12.0, 12.5, 13.0):
+        clock.now = now
+        answers.append(mission._at_goal(wp))
+    assert answers == [False, False, False, False, settles]  # 3 s after the first look, not before
+
+
+@pytest.mark.parametrize("elapsed_s, autopilot_s, rate", [
+    (2.0, 20.0, 10.0),  # a simulator sped up 10 x
+    (1.0, 10.0, 10.0),
+    (2.0, 0.8, 0.4),  # one running slow
+    (0.1, 1.0, 1.0),  # too soon after the takeoff to tell
+    (2.0, 0.0, 1.0),  # a clock that stands still says nothing
+    (2.0, math.nan, 1.0),  # no clock at all: a real autopilot's pace
+])
+def test_the_autopilot_rate_is_its_clock_over_ours_since_the_takeoff(clock, elapsed_s, autopilot_s, rate):
+    v = FakeVehicle(clock)
+    mission = make_mission(v, clock, straight_plan([]))
+    mission._takeoff_s, mission._takeoff_autopilot_s = 5.0, 100.0  # the takeoff command at 5 s ours, 100 s its
+    clock.now = 5.0 + elapsed_s
+    v.telemetry.local_time_s = 100.0 + autopilot_s
+    assert mission._autopilot_rate() == pytest.approx(rate)
+
+
+def test_a_frame_jump_is_re_tied_after_two_readings_a_quarter_second_apart_and_a_glitch_is_not(clock):
+    v = FakeVehicle(clock)
+    base, j1, j2 = LocalNED(0.0, 0.0, 0.0), LocalNED(3.0, 0.0, 0.0), LocalNED(3.0, 3.0, 0.0)  # 3 m jumps count
+    # what map_offset_now reads at each time (s): a one-reading glitch, a jump that stays, a glitch, a jump
+    readings = {-0.25: j1, 0.0: base, 0.25: j1, 0.5: base, 0.75: base, 1.0: j1, 1.25: j1, 1.5: j2, 1.75: j1,
+                2.0: j2, 2.25: j2, 2.5: j2}  # the very first reading is a glitch too
+    expected = {-0.25: base, 0.0: base, 0.25: base, 0.5: base, 0.75: base, 1.0: base, 1.25: j1, 1.5: j1, 1.75: j1,
+                2.0: j1, 2.25: j2, 2.5: j2}
+    asked = []
+
+    def map_offset_now(origin, ground):
+        asked.append(origin)
+        return readings[clock.now]
+
+    v.map_offset_now, v.shift_setpoint = map_offset_now, lambda dn, de, dd: None
+    mission = make_mission(v, clock, straight_plan([]))
+    offsets = {}
+    for now in readings:
+        clock.now = now
+        mission._check_local_frame()
+        mission._check_local_frame()  # a second look within the quarter second reads nothing
+        offsets[now] = mission._offset
+    assert offsets == expected
+    assert asked == [ORIGIN] * len(readings)  # one reading per quarter second, of the map's origin
+
+
+def test_a_disarm_refused_for_a_while_is_retried_every_half_second_until_accepted(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.disarm_refusals = 20  # refused for 10 s at one try per 0.5 s, within the 15 s timeout
+    result = make_mission(v, clock, straight_plan([]), disarm_timeout_s=15.0).run()
+    assert result.completed and not v.telemetry.armed
+    assert v.calls.count("disarm") == 21
+
+
+def test_the_progress_lines_give_the_distance_left_and_the_speed_flown(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    seen = []  # each line with where the vehicle was (map) and how fast it moved then
+
+    def progress(line):
+        t = v.telemetry
+        seen.append((line, t.north_m + 100.0, t.east_m - 50.0, math.hypot(t.local_v_north_mps, t.local_v_east_mps)))
+
+    make_mission(v, clock, straight_plan([]), progress=progress, progress_every_s=1.0).run()
+    numbered = [(re.match(r"(?:flying: |waypoint \d/\d reached: )(\d+) m to go at ([\d.]+) m/s", line), n, e, speed)
+                for line, n, e, speed in seen]
+    numbered = [(float(x.group(1)), float(x.group(2)), n, e, speed) for x, n, e, speed in numbered if x]
+    assert len(numbered) >= 15
+    for to_go_m, said_mps, n, e, speed in numbered:
+        assert said_mps == pytest.approx(speed, abs=0.051)
+        if 55.0 < n and e < 5.0:
+            continue  # rounding the corner: the planned legs are no oracle for the distance there
+        left_m = (60.0 - n) + 40.0 if n < 59.0 else 40.0 - e  # along the planned legs: 60 m north, 40 m east
+        assert to_go_m == pytest.approx(left_m, abs=2.0)
+    east_leg = [said for to_go, said, n, e, speed in numbered if 5.0 < e < 35.0]
+    north_leg = [said for to_go, said, n, e, speed in numbered if 5.0 < n < 55.0]
+    assert east_leg and north_leg and min(east_leg + north_leg) > 4.0  # 5 m/s on both legs, not 0
+
+
+def biased_north(v, offset_north_m):
+    """The vehicle settles ``offset_north_m`` north of a position-only setpoint."""
+    real_goto = v.goto_local
+
+    def goto(north_m, east_m, down_m, yaw_rad, velocity_ned=None):
+        real_goto(north_m + (offset_north_m if velocity_ned is None else 0.0), east_m, down_m, yaw_rad, velocity_ned)
+
+    v.goto_local = goto
+
+
+def test_a_steady_offset_to_the_north_over_the_goal_is_trimmed_out(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    biased_north(v, 0.5)
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and result.landing_error_m <= 0.3
+    commanded_north = v.gotos[-1][0] - 0.5
+    assert -0.5 <= commanded_north - (60 - 100) <= -0.2  # told to hold south of the goal
+
+
+def test_a_legs_deadline_is_the_leg_timeout_plus_the_leg_at_the_minimum_speed(clock):
+    # 0.5 m/s where 1 m/s is the least expected: the 60 m north leg (at east 50 m) gets 5 s + 60 m / (1 m/s)
+    v = FakeVehicle(clock, start=(-100.0, 100.0), speed_mps=0.5)
+    with pytest.raises(m.FlightAborted, match=r"waypoint 1 \(60\.0 N, 50\.0 E, 10\.0 m\) not reached in time \(65 s\)"):
+        make_mission(v, clock, fixed_plan([]), leg_timeout_s=5.0, min_speed_mps=1.0, takeoff_timeout_s=100.0,
+                     poll_s=0.1).run()
+    # fast enough for the same leg: 5 m/s flies it in 12 s, well within; the last leg is 10 m east
+    v = FakeVehicle(clock, start=(-100.0, 100.0), speed_mps=5.0)
+    assert make_mission(v, clock, fixed_plan([]), leg_timeout_s=5.0, min_speed_mps=1.0).run().completed
+
+
+def test_the_corner_cut_and_the_speed_limits_given_shape_the_flight(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    result = make_mission(v, clock, straight_plan([]), corner_cut_m=2.0, lateral_accel_mps2=0.5,
+                          accel_mps2=0.5).run()
+    assert result.completed
+    corner = np.array([60.0, 0.0])
+    nearest_m = min(float(np.linalg.norm(row[1:3] - corner)) for row in result.track)
+    assert nearest_m == pytest.approx(2.0 * math.sqrt(2), abs=0.5)  # the arc's middle 2 m inside both legs
+    commands = [(np.array(g[:2]) + (100.0, -50.0), np.linalg.norm(vel[:2]))
+                for g, vel in zip(v.gotos, v.velocities, strict=True) if vel is not None]
+    radius_m = 2.0 / (1.0 - math.cos(math.pi / 4))
+    on_arc = [speed for at, speed in commands if np.linalg.norm(at - corner) < 4.0]
+    assert on_arc and max(on_arc) <= math.sqrt(0.5 * radius_m) + 0.3  # 1.85 m/s at 0.5 m/s^2 sideways
+    # braking at 0.5 m/s^2: 10 m before the arc the path allows sqrt(1.85^2 + 2 x 0.5 x 10) = 3.7 m/s
+    # braking at 0.5 m/s^2 towards the arc (it starts r tan 45 deg = r before the corner): at d m before it the path
+    # allows sqrt(1.85^2 + 2 x 0.5 x d)
+    before = [(60.0 - radius_m - at[0], speed) for at, speed in commands if 30.0 < at[0] < 60.0 - radius_m
+              and abs(at[1]) < 1.0]
+    assert len(before) > 20 and all(speed <= math.sqrt(0.5 * radius_m + 2 * 0.5 * d) + 0.3 for d, speed in before)
+
+
+def test_a_climbing_leg_is_flown_within_the_vertical_speed_given(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def climb(n, e):
+        return np.array([[n, e, 10.0, 0.0], [n + 60.0, e, 30.0, 0.0]])
+
+    assert make_mission(v, clock, climb, vertical_mps=0.5).run().completed
+    climbs = [-vel[2] for vel in v.velocities if vel is not None]
+    assert max(climbs) == pytest.approx(0.5, abs=0.05)
+
+
+def test_the_track_is_sampled_every_track_interval_s(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    result = make_mission(v, clock, straight_plan([]), track_interval_s=0.5).run()
+    steps = np.diff(result.track[:, 0])
+    assert len(result.track) == pytest.approx(result.flight_time_s / 0.5, abs=5)
+    assert np.median(steps) == pytest.approx(0.5, abs=0.03)
+
+
+def test_the_takeoff_from_a_roof_asks_for_the_height_above_the_roof(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.telemetry.amsl_at_zero_m = GROUND_AMSL_M + 8.0  # standing on an 8 m roof
+    asked = []
+    real_takeoff = v.takeoff
+    v.takeoff = lambda altitude_m: asked.append(altitude_m) or real_takeoff(altitude_m)
+    result = make_mission(v, clock, straight_plan([]), ground_amsl_m=GROUND_AMSL_M).run()
+    assert result.completed and asked == [pytest.approx(2.0)]  # to 10 m above the map's ground: 2 m above it
+
+
+def test_a_goal_next_to_the_start_or_at_it_is_flown_and_landed(clock):
+    for goal_north_m in (0.4, 0.0):  # 0.4 m: settling distance from the first look; 0: a plan of one waypoint
+        v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+        def plan(n, e, goal_north_m=goal_north_m):
+            if goal_north_m == 0.0:
+                return np.array([[n, e, 10.0, 0.0]])
+            return np.array([[n, e, 10.0, 0.0], [n + goal_north_m, e, 10.0, 0.0]])
+
+        result = make_mission(v, clock, plan).run()
+        assert result.completed and result.landing_error_m <= 0.3 and not v.telemetry.armed
+        assert result.waypoints[0, 3] == 0.0  # no leg to turn to: north
+
+
+def test_a_vehicle_that_stops_following_is_noticed_after_stuck_s_and_given_up_on_after_max_recoveries(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    lines, retaken_at = [], []
+    clock.at(8.0, lambda: setattr(v, "speed_mps", 0.0))  # it stops following for good at 8 s
+    real_take = v.take_control
+    v.take_control = lambda: retaken_at.append(clock.now) or real_take()
+    with pytest.raises(m.FlightAborted, match="control lost 3 times, giving up.*landed"):
+        make_mission(v, clock, straight_plan([]), progress=lines.append, stuck_s=3.0, max_recoveries=2,
+                     accel_mps2=6.0).run()  # 6 m/s^2: its first command after each retake is over 1 m/s
+    assert len(retaken_at) == 2 and 11.0 <= retaken_at[0] <= 11.2  # standing still for 3 s, not at once
+    assert retaken_at[1] - retaken_at[0] >= 3.0
+    assert any("stopped following our setpoints" in line for line in lines)
+    assert not v.telemetry.armed and v.telemetry.on_ground
+
+
+def test_the_link_lost_while_arming_leaves_the_vehicle_on_the_ground(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    real_prepare = v.prepare_flight
+
+    def prepare_then_lose_the_link():
+        real_prepare()
+        v.link_ok = False
+
+    v.prepare_flight = prepare_then_lose_the_link
+    with pytest.raises(m.LinkLostInFlight, match="while arming; the vehicle is on the ground") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert err.value.result.final_state is S.FAILED and not v.telemetry.armed
+
+
+class Busy(Exception):
+    """A vehicle error that says nothing about being permanent (no ``permanent`` attribute)."""
+
+
+def test_an_arm_refusal_that_does_not_say_it_is_permanent_is_retried(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.fail_on["arm"] = Busy("busy")
+    result = make_mission(v, clock, straight_plan([]), vehicle_errors=(Refused, Busy)).run()
+    assert result.completed and v.calls.count("arm") == 2
+
+
+
+def test_any_positive_altitude_is_accepted_even_below_a_metre(clock):
+    assert make_mission(FakeVehicle(clock), clock, straight_plan([]), altitude_m=0.5).altitude_m == 0.5
+
+
+def test_the_first_setpoint_after_the_takeoff_is_the_start_of_the_path(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    assert make_mission(v, clock, straight_plan([])).run().completed
+    first = v.gotos[0]
+    assert (first[0] + 100.0, first[1] - 50.0, -first[2]) == pytest.approx((0.0, 0.0, 10.0), abs=0.3)
+
+
+def test_path_length_of_one_two_and_more_points():
+    assert fp.path_length_m(np.array([[1.0, 2.0, 3.0]])) == 0.0
+    assert fp.path_length_m(np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]])) == pytest.approx(5.0)
+
+
+def test_a_planner_of_integers_without_altitudes_gets_float_headings_and_the_flight_altitude(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def plan(n, e):  # plain Python numbers; NaN altitude: "fly at altitude_m"
+        return [[0, 0, math.nan, 0], [60, 0, math.nan, 0], [60, 40, 12, 0]]
+
+    result = make_mission(v, clock, plan, altitude_m=8.0).run()
+    assert result.completed
+    assert result.waypoints[:, 2].tolist() == [8.0, 8.0, 12.0]
+    assert result.waypoints[:, 3] == pytest.approx([0.0, 0.0, math.pi / 2])  # along each leg, not truncated
+    # planned: the climb to 8 m, the legs (60 m; 40 m rising 4 m), the descent from the last waypoint's 12 m
+    assert result.planned_length_m == pytest.approx(8.0 + 60.0 + math.hypot(40.0, 4.0) + 12.0)
+
+
+def test_repeated_progress_lines_come_once_per_progress_every_s(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0), arm_refusals=12)  # refused for 12 s at one try a second
+    times, lines = [], []
+
+    def progress(line):
+        times.append(clock.now)
+        lines.append(line)
+
+    result = make_mission(v, clock, straight_plan([]), progress=progress, progress_every_s=5.0).run()
+    assert result.completed
+    for prefix in ("arming refused", "flying:"):
+        at = [t for t, line in zip(times, lines, strict=True) if line.startswith(prefix)]
+        assert len(at) >= 2 and min(np.diff(at)) >= 5.0 - 1e-9, prefix
+    assert 2 <= sum(line.startswith("arming refused") for line in lines) <= 3  # 12 s of refusals: at 0, 5, 10 s
+
+
+def test_arming_gives_up_at_the_readiness_deadline_not_a_retry_later(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0), arm_refusals=10**6)
+    with pytest.raises(m.ArmingFailed):
+        make_mission(v, clock, straight_plan([]), arm_timeout_s=10.0, arm_retry_s=0.7).run()
+    assert clock.now == pytest.approx(10.0, abs=1e-9)  # the last wait is cut to the deadline
+
+
+def test_the_link_lost_while_waiting_for_readiness_is_reported_before_takeoff(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0), ready_at_s=30.0)
+    clock.at(2.0, lambda: setattr(v, "link_ok", False))
+    with pytest.raises(m.LinkLostInFlight, match="before takeoff"):
+        make_mission(v, clock, straight_plan([])).run()
+    assert "arm" not in v.calls
+
+
+def test_the_offset_line_says_whether_the_vehicle_stands_on_a_roof(clock):
+    said = {}
+    for name, kwargs, amsl in (("roof", dict(surface_fn=lambda n, e: 8.0 if abs(n) < 1 else 0.0), 8.0),
+                               ("given", dict(ground_amsl_m=GROUND_AMSL_M), 0.0)):
+        clock = FakeClock()
+        v = FakeVehicle(clock, start=(-100.0, 50.0))
+        v.telemetry.amsl_at_zero_m = GROUND_AMSL_M + amsl
+        lines = []
+        make_mission(v, clock, straight_plan([]), progress=lines.append, **kwargs).run()
+        said[name] = next(line for line in lines if line.startswith("map ground at"))
+    assert "(the vehicle stands on a 8.0 m roof)" in said["roof"]
+    assert "(the vehicle stands on the ground)" in said["given"]  # ground given outright: no roof measured
+
+
+def test_the_autopilots_response_time_makes_it_brake_earlier(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.limits.response_s = 0.8
+    mission = make_mission(v, clock, straight_plan([]))
+    assert mission.run().completed and mission.brake_lag_s == 0.8
+
+
+def test_an_outage_during_the_takeoff_is_ridden_out_and_the_mission_completes(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    outage(clock, v, 1.0, 2.0)  # climbing at 5 m/s: lost at 5 m
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and result.recoveries == 1 and result.replans == []
+
+
+def test_a_vertical_leg_keeps_the_heading_and_the_last_leg_follows_the_path(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def plan(n, e):  # up 10 m on the spot, then 30 m east, then 30 m north
+        return np.array([[n, e, 10.0, 0.0], [n, e, 20.0, 0.0], [n, e + 30.0, 20.0, 0.0],
+                         [n + 30.0, e + 30.0, 20.0, 0.0]])
+
+    takeoffs = []
+    real_takeoff = v.takeoff
+    v.takeoff = lambda altitude_m: takeoffs.append(altitude_m) or real_takeoff(altitude_m)
+    result = make_mission(v, clock, plan).run()
+    assert result.completed and takeoffs == [pytest.approx(10.0)]  # to the first waypoint, then up the leg
+    yaws = [g[3] for g in v.gotos]
+    assert all(isinstance(y, float) and math.isfinite(y) for y in yaws)
+    corners = np.array([[0.0, 0.0], [0.0, 30.0], [30.0, 30.0]])
+    streamed = [np.array(g[:2]) + (100.0, -50.0) for g, vel in zip(v.gotos, v.velocities, strict=True)
+                if vel is not None]
+    last_leg = [at for at in streamed if at[0] > 3.0 and np.linalg.norm(at - (30.0, 30.0)) > 5.0]
+    assert last_leg and max(_distance_to_polyline(at, corners) for at in last_leg) < 0.6  # on the path, not the goal
+
+
+def test_the_feedforward_never_coasts_into_a_wall_beyond_the_goal(clock):
+    # the goal 5 m short of a wall across the map; the autopilot coasts 3 s and brakes at 2.5 m/s^2 on a lost link
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def plan(n, e):
+        return np.array([[n, e, 10.0, 0.0], [n + 60.0, e, 10.0, 0.0]])
+
+    result = make_mission(v, clock, plan, clearance_fn=wall_north_at(65.0)).run()
+    assert result.completed
+    for g, vel in zip(v.gotos, v.velocities, strict=True):
+        if vel is not None:
+            north_m = g[0] + 100.0
+            assert north_m + v.limits.coast_m(float(np.linalg.norm(vel[:2]))) <= 65.0 + 1e-6
+
+
+def test_a_planner_of_plain_integers_gets_float_headings(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    result = make_mission(v, clock, lambda n, e: [[0, 0, 10, 0], [60, 0, 10, 0], [60, 40, 10, 0]]).run()
+    assert result.completed and result.waypoints[:, 3] == pytest.approx([0.0, 0.0, math.pi / 2])
+
+
+def test_a_vehicle_not_yet_standing_disarmed_on_the_ground_is_waited_for_with_a_line_every_5_s(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.telemetry.on_ground = False  # its estimator still says it moves; it settles at 11.1 s
+    clock.at(11.1, lambda: setattr(v.telemetry, "on_ground", True))
+    lines, planned_at = [], []
+    plan = straight_plan([])
+    result = make_mission(v, clock, lambda n, e: planned_at.append(clock.now) or plan(n, e),
+                          progress=lines.append).run()
+    assert result.completed
+    assert sum(line.startswith("waiting for the vehicle to stand disarmed") for line in lines) == 3  # 0, 5, 10 s
+    assert 11.1 <= planned_at[0] <= 11.1 + 0.2 + 1e-9  # looked at every 0.2 s
+
+
+def test_an_armed_vehicle_is_refused_as_armed(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.telemetry.armed = True  # armed on the ground
+    with pytest.raises(m.NotReady, match="the vehicle is armed: a mission starts from a vehicle disarmed"):
+        make_mission(v, clock, straight_plan([]), arm_timeout_s=2.0).run()
 
 
 # ------------------------------------------------------------------------- missions against sim/

@@ -468,15 +468,67 @@ def test_the_parsers_defaults_are_readmes_and_run_has_the_same():
     ("port", [1, 65_535], [0, 65_536]),
     ("seed", [0, 2**32 - 1], [-1, 2**32]),
     ("samples", [2, 1_000_000], [1, 1_000_001]),
+    ("target_system", [1, 255], [0, 256]),
+    ("ground_amsl", [-500.0, -100.0, 9_000.0], [-500.5, 9_000.5]),
 ])
 def test_numbers_are_checked_at_both_ends_of_their_range(name, accepted, refused):
     from skyroute.cli import main as cli
 
+    flag = name.replace("_", "-") if name in ("arm_timeout", "link_timeout", "target_system", "ground_amsl") else name
     for value in accepted:
         cli.check_numbers(**{name: value})
     for value in refused:
-        with pytest.raises(cli.UserError, match=f"--{name.replace('_', '-') if 'timeout' in name else name} must"):
+        with pytest.raises(cli.UserError, match=f"--{flag} must"):
             cli.check_numbers(**{name: value})
+
+
+def test_the_numeric_options_are_read_as_numbers():
+    from skyroute.cli import main as cli
+
+    args = vars(cli.build_parser().parse_args(["--target-system", "7", "--ground-amsl", "12.5", "--explore", "40",
+                                               "--explore-time", "90"]))
+    got = {k: args[k] for k in ("target_system", "ground_amsl", "explore", "explore_time")}
+    assert got == {"target_system": 7, "ground_amsl": 12.5, "explore": 40.0, "explore_time": 90.0}
+    assert type(got["target_system"]) is int and all(type(got[k]) is float for k in got if k != "target_system")
+
+
+@pytest.mark.parametrize("extra, fragment", [
+    (["--target-system", "0"], "--target-system must be >= 1"),
+    (["--ground-amsl", "9001"], "--ground-amsl must be"),
+])
+def test_a_vehicle_option_out_of_range_is_refused_even_when_only_planning(walled_map, capsys, extra, fragment):
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), *extra]) == EXIT_BAD_INPUT
+    assert fragment in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("given, fragment", [
+    (["--explore-time", "90"], "need --explore RADIUS_M"),
+    (["--save-map", "out.csv"], "need --explore RADIUS_M"),
+    (["--explore", "40", "--plan-only"], "--explore flies: not with --plan-only"),
+])
+def test_any_exploration_option_goes_to_the_exploration_checks(given, fragment, capsys):
+    assert main(given) == EXIT_BAD_INPUT
+    assert fragment in capsys.readouterr().err
+
+
+def test_a_plan_only_run_without_a_start_plans_from_the_maps_home(walled_map, capsys):
+    assert main(["--plan-only", "--json", "--map", str(walled_map), *latlon(35.3, 0.3)]) == EXIT_OK
+    start = json.loads(capsys.readouterr().out)["start"]
+    assert (start["north_m"], start["east_m"]) == (0.0, 0.0)
+
+
+def test_a_3d_goal_off_the_map_is_refused_naming_the_goal(walled_map, capsys):
+    code = main(["--plan-only", "--map", str(walled_map), "--planner", "grid3d", "--goal_alt", "5",
+                 *latlon(500.0, 0.3)])
+    assert code == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert err.startswith("error: goal ") and "off the map" in err
+
+
+def test_a_plan_only_export_says_where_it_was_written(walled_map, tmp_path, capsys):
+    out_file = tmp_path / "plan.geojson"
+    assert main(["--plan-only", "--map", str(walled_map), *latlon(35.3, 0.3), "--export", str(out_file)]) == EXIT_OK
+    assert f"exported to {out_file}" in capsys.readouterr().out and out_file.is_file()
 
 
 def test_a_speedup_out_of_range_is_refused_before_any_work(walled_map, capsys):

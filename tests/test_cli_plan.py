@@ -301,6 +301,7 @@ def test_the_compile_notice_is_printed_unless_quiet(walled_map, capsys):
         assert expected in capsys.readouterr().err
 
 
+@pytest.mark.slow  # ~20 s: every kernel compiled from cold in a child process
 def test_the_kernels_compile_once_and_load_from_the_disk_cache_after(walled_map, tmp_path):
     # A fresh cache directory: the first run compiles (and says so once), the second loads everything from disk.
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}

@@ -14,6 +14,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 #: The wheel's top level, as the user asked: the classic entry points, the simulator and one project package.
 TOP_LEVEL = {"motion_planning.py", "planning_utils.py", "sim", "skyroute"}
+#: One xdist worker builds the wheel once for every test here (split across two, each would build its own).
+pytestmark = pytest.mark.xdist_group("wheel")
 
 
 @pytest.fixture(scope="module")

@@ -35,6 +35,21 @@ WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
 shared_dir = shared.shared_dir  # the one rule (tests/shared.py): $SKYROUTE_SHARED, else ../shared
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def run_client(args: list[str]) -> subprocess.Popen:
+    """``motion_planning.py args`` as a child in the project root, pipes for its output, SIGINT at its default: a test
+    run started in the background of a shell (``cmd &``) passes SIGINT on ignored, and Python then never turns
+    Ctrl-C into KeyboardInterrupt, so a test that sends it would see the mission fly on to the goal."""
+    import sys
+
+    return subprocess.Popen([sys.executable, str(ROOT / "motion_planning.py"), *args], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint)  # before exec: only a signal disposition
+
+
 def arducopter_binary() -> Path | None:
     """The ArduCopter SITL binary in the shared directory (:func:`tests.shared.arducopter`), or None."""
     return shared.arducopter()

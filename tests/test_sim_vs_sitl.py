@@ -605,6 +605,21 @@ def _px4_refusals(probe: Probe) -> list:
     return out
 
 
+def climb_in_offboard(probe: Probe, target: list, speedup: float, since: int) -> None:
+    """With setpoints streaming: OFFBOARD, arm, and wait until the vehicle is within 0.3 m of ``target``'s down.
+
+    PX4 answers TEMPORARILY_REJECTED while its health checks settle after the previous test's landing (seen in CI
+    under load); a client retries that, so does this probe, for up to 20 s of the autopilot's time."""
+    time.sleep(1.0 / speedup)
+    assert probe.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == 0
+    deadline = time.monotonic() + 20.0 / speedup
+    while (ack := probe.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)).result == \
+            M.MAV_RESULT_TEMPORARILY_REJECTED and time.monotonic() < deadline:
+        time.sleep(0.5 / speedup)
+    assert ack.result == 0
+    probe.wait_for("LOCAL_POSITION_NED", lambda m: m.z < target[2] + 0.3, timeout_s=20, since=since)
+
+
 def test_px4_offboard_flight_loss_failsafe_landing_and_mode_after_disarm(px4_sitl, sim_probe):
     """Offboard climb to 3 m at 20 Hz (of the autopilot's time), setpoints stop: failsafe; they resume: OFFBOARD
     again; NAV_LAND: landed-state sequence, "Disarmed by landing", and the mode PX4 is in after the disarm."""
@@ -615,16 +630,7 @@ def test_px4_offboard_flight_loss_failsafe_landing_and_mode_after_disarm(px4_sit
         target = [lpn.x, lpn.y, lpn.z - 3.0]
         since = probe.mark()
         with streaming(probe, target, 20.0 * speedup):
-            time.sleep(1.0 / speedup)
-            assert probe.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == 0
-            # PX4 answers TEMPORARILY_REJECTED while its health checks settle after the previous test's landing
-            # (seen in CI under load); a client retries that, so does this probe, for up to 20 s of its time
-            deadline = time.monotonic() + 20.0 / speedup
-            while (ack := probe.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)).result == \
-                    M.MAV_RESULT_TEMPORARILY_REJECTED and time.monotonic() < deadline:
-                time.sleep(0.5 / speedup)
-            assert ack.result == 0
-            probe.wait_for("LOCAL_POSITION_NED", lambda m: m.z < target[2] + 0.3, timeout_s=15, since=since)
+            climb_in_offboard(probe, target, speedup, since)
             lost_at = probe.mark()
         probe.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", timeout_s=5, since=lost_at)
         hb = probe.heartbeat(probe.mark())
@@ -660,14 +666,7 @@ def test_px4_offboard_loss_without_rc_descends_in_position_mode_and_lands(px4_si
         target = [lpn.x, lpn.y, ground - 5.0]
         since = probe.mark()
         with streaming(probe, target, 20.0 * speedup):
-            time.sleep(1.0 / speedup)
-            assert probe.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == 0
-            deadline = time.monotonic() + 20.0 / speedup  # health checks settling after a landing, as above
-            while (ack := probe.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)).result == \
-                    M.MAV_RESULT_TEMPORARILY_REJECTED and time.monotonic() < deadline:
-                time.sleep(0.5 / speedup)
-            assert ack.result == 0
-            probe.wait_for("LOCAL_POSITION_NED", lambda m: m.z < target[2] + 0.3, timeout_s=20, since=since)
+            climb_in_offboard(probe, target, speedup, since)
         lost = probe.mark()
         probe.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", timeout_s=5, since=lost)
         failsafe = probe.mark()

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import math
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
@@ -19,14 +17,14 @@ import pytest
 import motion_planning as mp
 from tests import shared
 from tests.exit_codes import EXIT_INTERRUPTED, EXIT_OK  # README's numbers, not the code's constants
-from tests.sitl_support import ROOT, Monitor, Px4Sitl, held_out_goal, read_boxes, to_latlon
+from tests.sitl_support import Monitor, Px4Sitl, held_out_goal, read_boxes, run_client, to_latlon
 
 pytestmark = shared.needs_px4  # the one rule for ../shared (tests/shared.py); counted in the summary
 
 MAP = mp.DEFAULT_MAP
 LAT0, LON0, BOXES = read_boxes(MAP)
 ALT_M, SAFETY_M = 5.0, 5.0
-GOAL_LONG = (129.5, -57.5)  # four legs round the blocks
+GOAL_SHORT = (99.5, 50.5)  # ~120 m, two legs
 HOME_GOAL = (0.5, 0.5)
 
 
@@ -81,10 +79,7 @@ def test_a_stock_boot_flies_a_held_out_mission_then_a_second_one(px4, tmp_path, 
 @pytest.mark.parametrize("px4", [True], indirect=True, ids=["fast-align"])
 def test_ctrl_c_in_flight_lands_where_it_is_then_a_second_mission_flies(px4, tmp_path, capsys):
     sitl, monitor = px4
-    # the longer route: under load the monitor sees "flying" late, and on the 120 m one the mission had landed at
-    # the goal (exit 0) by the time the signal came
-    proc = subprocess.Popen([sys.executable, str(ROOT / "motion_planning.py"), *mission_args(sitl, GOAL_LONG,
-                            tmp_path)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = run_client(mission_args(sitl, GOAL_SHORT, tmp_path))
     try:
         at = monitor.wait(lambda s: s.armed and s.up_m > 3.0 and s.speed_mps > 2.0, 90.0, "a vehicle flying")
         proc.send_signal(signal.SIGINT)

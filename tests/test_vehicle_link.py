@@ -441,6 +441,22 @@ def test_the_link_lives_on_any_message_not_only_heartbeats(fake, connect):
         v.arm()
 
 
+def test_a_silence_shorter_than_a_lost_link_explains_a_failsafe_mode_change(fake, connect):
+    # a short outage: PX4 leaves OFFBOARD after COM_OF_LOSS_T (1 s), its "Failsafe activated" lost with the link;
+    # the silence, not a pilot, explains the mode the vehicle comes back in
+    ap = fake()
+    v = connect(ap.port, link_floor_s=5.0)  # lost only after 5 s of silence: far from this 1.2 s one
+    assert wait_until(lambda: v.telemetry.has_local)
+    assert v.failsafe_hint() is None
+    ap.send_heartbeat = ap.send_positions = False
+    time.sleep(1.2)
+    ap.send_heartbeat = ap.send_positions = True
+    assert wait_until(lambda: v.health.silent_s() < 0.2)
+    assert v.link_ok and not v.link_silent_within(5.0)  # never counted as lost
+    hint = v.failsafe_hint()
+    assert hint is not None and "heard nothing from the autopilot for" in hint
+
+
 def test_the_round_trip_is_measured_and_sizes_the_link_timeout(fake, connect):
     ap = fake(latency_s=0.25)  # everything the autopilot sends arrives 250 ms late
     v = connect(ap.port, link_floor_s=0.5)

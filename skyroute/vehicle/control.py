@@ -82,13 +82,17 @@ class MavlinkVehicle(MavlinkLink):
 
     def failsafe_hint(self, window_s: float = 5.0, pause_s: float = 0.5) -> str | None:
         """Why the autopilot may have left our mode on its own in the last ``window_s``: our setpoints paused for
-        ``pause_s`` or more (PX4 leaves OFFBOARD after COM_OF_LOSS_T), our link was silent, or it announced a
+        ``pause_s`` or more (PX4 leaves OFFBOARD after COM_OF_LOSS_T), our link was silent, nothing came from the
+        autopilot for ``pause_s`` or more (a short outage: its failsafe text was lost with it), or it announced a
         failsafe (a STATUSTEXT with "failsafe" in it). None if nothing explains it."""
         pause = self.setpoint_pause_s(window_s)
         if pause >= pause_s:
             return f"our setpoints paused for {pause:.1f} s"
         if self.link_silent_within(window_s):
             return "our link was silent"
+        gap = self.health.longest_gap_s(window_s)
+        if gap >= pause_s:  # shorter than a lost link, long enough for the autopilot's offboard-loss failsafe
+            return f"we heard nothing from the autopilot for {gap:.1f} s"
         now = time.monotonic()
         for s in reversed(self.telemetry.statustexts):
             if now - s.time_s > window_s:

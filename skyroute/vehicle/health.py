@@ -43,11 +43,34 @@ class LinkHealth:
         self._last_heard_s = math.nan
         self._samples: deque[float] = deque(maxlen=window)
         self._smoothed_s = math.nan
+        self._gaps: deque[tuple[float, float]] = deque(maxlen=10)  # (when it ended, s) of silences >= GAP_S
+
+    #: A silence this long (s) is remembered: the autopilots stream at 10-50 Hz, so it is the link, not a lull.
+    GAP_S = 0.5
 
     def heard(self, now_s: float | None = None) -> None:
         """A message from the target arrived."""
+        now_s = self.clock() if now_s is None else now_s
         with self._lock:
-            self._last_heard_s = self.clock() if now_s is None else now_s
+            gap = now_s - self._last_heard_s
+            if gap >= self.GAP_S:  # False while NaN
+                self._gaps.append((now_s, gap))
+            self._last_heard_s = now_s
+
+    def longest_gap_s(self, window_s: float, now_s: float | None = None) -> float:
+        """The longest silence (s, at least :attr:`GAP_S`) that ended in the last ``window_s``; 0 if none.
+
+        A silence shorter than :attr:`timeout_s` is not a lost link, but an autopilot that heard nothing from us
+        for as long may have failed safe meanwhile (PX4 leaves OFFBOARD after COM_OF_LOSS_T, 1 s).
+
+        >>> h = LinkHealth(clock=lambda: 0.0)
+        >>> for t in (0.0, 0.1, 1.6, 1.7): h.heard(t)
+        >>> h.longest_gap_s(5.0, now_s=2.0), h.longest_gap_s(0.2, now_s=2.0)
+        (1.5, 0.0)
+        """
+        now_s = self.clock() if now_s is None else now_s
+        with self._lock:
+            return max((gap for when, gap in self._gaps if now_s - when <= window_s), default=0.0)
 
     def round_trip(self, rtt_s: float) -> None:
         """One round-trip sample (s); ignored unless 0 <= rtt_s < 30."""

@@ -457,6 +457,17 @@ def test_a_silence_shorter_than_a_lost_link_explains_a_failsafe_mode_change(fake
     assert hint is not None and "heard nothing from the autopilot for" in hint
 
 
+def test_a_silence_shorter_than_the_autopilots_own_failsafe_timeout_explains_nothing(fake, connect):
+    ap = fake(params={"COM_OF_LOSS_T": (3.0, mavlink.MAV_PARAM_TYPE_REAL32)})  # PX4 waits 3 s for setpoints
+    v = connect(ap.port, link_floor_s=5.0)
+    v.flight_limits()
+    ap.send_heartbeat = ap.send_positions = False
+    time.sleep(1.2)
+    ap.send_heartbeat = ap.send_positions = True
+    assert wait_until(lambda: v.health.silent_s() < 0.2)
+    assert v.failsafe_hint() is None  # a pilot's mode after this is a pilot's
+
+
 def test_the_round_trip_is_measured_and_sizes_the_link_timeout(fake, connect):
     ap = fake(latency_s=0.25)  # everything the autopilot sends arrives 250 ms late
     v = connect(ap.port, link_floor_s=0.5)

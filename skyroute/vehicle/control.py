@@ -91,8 +91,8 @@ class MavlinkVehicle(MavlinkLink):
         if self.link_silent_within(window_s):
             return "our link was silent"
         gap = self.health.longest_gap_s(window_s)
-        if gap >= pause_s:  # shorter than a lost link, long enough for the autopilot's offboard-loss failsafe
-            return f"we heard nothing from the autopilot for {gap:.1f} s"
+        if gap >= max(pause_s, 0.9 * self._failsafe_after_s()):  # shorter than a lost link, long enough for its
+            return f"we heard nothing from the autopilot for {gap:.1f} s"  # failsafe (its text lost with the link)
         now = time.monotonic()
         for s in reversed(self.telemetry.statustexts):
             if now - s.time_s > window_s:
@@ -100,6 +100,12 @@ class MavlinkVehicle(MavlinkLink):
             if "failsafe" in s.text.lower().replace("-", "").replace(" ", ""):
                 return f"the autopilot said {s.text!r}"
         return None
+
+    def _failsafe_after_s(self) -> float:
+        """How long the autopilot waits for us before its own failsafe (PX4 COM_OF_LOSS_T, ArduCopter
+        FS_GCS_TIMEOUT), when its parameters were read; 0 if not known."""
+        params = self._limits.params if self._limits is not None else {}
+        return float(params.get("COM_OF_LOSS_T", params.get("FS_GCS_TIMEOUT", 0.0)))
 
     def flight_limits(self) -> limits_mod.FlightLimits:
         """The autopilot's speed/acceleration limits and link-loss behaviour, from its parameters (read once)."""

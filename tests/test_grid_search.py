@@ -24,8 +24,9 @@ SQRT2 = math.sqrt(2)
 METHODS = ["jps", "astar"]
 
 
-def dijkstra_cost(grid: np.ndarray, start, goal) -> float:
-    """Reference: plain Dijkstra on the 8-connected graph without corner cutting; inf if unreachable."""
+def dijkstra_cost(grid: np.ndarray, start, goal, weights: np.ndarray | None = None) -> float:
+    """Reference: plain Dijkstra on the 8-connected graph without corner cutting; inf if unreachable. With
+    ``weights``, a step costs its length times the mean weight of its two cells."""
     n, m = grid.shape
     dist = {tuple(start): 0.0}
     queue = [(0.0, tuple(start))]
@@ -44,7 +45,8 @@ def dijkstra_cost(grid: np.ndarray, start, goal) -> float:
                     continue
                 if di and dj and (grid[i + di, j] or grid[i, j + dj]):
                     continue
-                nd = d + (SQRT2 if di and dj else 1.0)
+                nd = d + (SQRT2 if di and dj else 1.0) * (1.0 if weights is None else
+                                                          0.5 * (weights[i, j] + weights[a, b]))
                 if nd < dist.get((a, b), math.inf):
                     dist[(a, b)] = nd
                     heapq.heappush(queue, (nd, (a, b)))
@@ -404,3 +406,49 @@ def test_check_cell_refuses_one_cell_beyond_each_edge_and_names_a_blocked_cell()
         planner.check_cell("goal", (2, 6))
     assert (info.value.which, tuple(info.value.cell)) == ("goal", (2, 6))
     assert planner.check_cell("start", (3, 8)) == (3, 8)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_weighted_cost_equals_weighted_dijkstra_on_random_maps(seed):
+    rng = np.random.default_rng(100 + seed)
+    grid = random_grid(rng, density=0.15 + 0.3 * rng.random(), blob=bool(seed % 2))
+    weights = np.where(rng.random(grid.shape) < 0.3, 1.0 + 4.0 * rng.random(grid.shape), 1.0)
+    planner = GridPlanner(grid)
+    free = np.argwhere(~grid)
+    for _ in range(5):
+        start, goal = free[rng.integers(len(free))], free[rng.integers(len(free))]
+        expected = dijkstra_cost(grid, start, goal, weights)
+        if math.isinf(expected):
+            with pytest.raises(NoPathError):
+                planner.plan_weighted(start, goal, weights)
+            continue
+        path = planner.plan_weighted(start, goal, weights)
+        assert path.cost == pytest.approx(expected, abs=1e-9)
+        steps = np.diff(path.cells, axis=0)
+        a, b = path.cells[:-1], path.cells[1:]
+        length = np.where((steps != 0).all(axis=1), SQRT2, 1.0)
+        mean = 0.5 * (weights[a[:, 0], a[:, 1]] + weights[b[:, 0], b[:, 1]])
+        assert float((length * mean).sum()) == pytest.approx(path.cost, abs=1e-9)  # the path is what it costs
+        assert_valid_path(grid, path.cells, start, goal, float(length.sum()))
+
+
+def test_unit_weights_give_the_unweighted_optimum():
+    rng = np.random.default_rng(7)
+    grid = random_grid(rng)
+    free = np.argwhere(~grid)
+    planner = GridPlanner(grid)
+    for _ in range(10):
+        start, goal = free[rng.integers(len(free))], free[rng.integers(len(free))]
+        try:
+            plain = planner.plan(start, goal).cost
+        except NoPathError:
+            continue
+        assert planner.plan_weighted(start, goal, np.ones(grid.shape)).cost == pytest.approx(plain, abs=1e-9)
+
+
+def test_weights_must_match_the_grid_and_never_go_below_one():
+    planner = GridPlanner(np.zeros((4, 4), dtype=bool))
+    with pytest.raises(ValueError, match="shape"):
+        planner.plan_weighted((0, 0), (3, 3), np.ones((4, 5)))
+    with pytest.raises(ValueError, match="at least 1"):
+        planner.plan_weighted((0, 0), (3, 3), np.full((4, 4), 0.5))

@@ -226,3 +226,61 @@ def test_a_heading_relative_sector_turned_by_the_heading_lag_still_explains_the_
     live, _ = _live(post, confirm_hits=1)
     update = live.add_scan(*p, stated, math.radians(22.5), d, 30.0, bearing_error_rad=math.radians(15.0))
     assert update.unexplained == 0 and live.hits.sum() == 0
+
+
+#: One block (north -20..20, east -60..40) between a start south of it and a goal north of it: round its east end
+#: is the shorter way (~150 m), round its west end ~185 m. Posts fix a 200 m extent.
+ISLAND = np.array([[0.0, -10.0, 15.0, 20.0, 50.0, 15.0], [-99.5, -99.5, 0.5, 0.5, 0.5, 0.5],
+                   [99.5, 99.5, 0.5, 0.5, 0.5, 0.5]])
+
+
+def _seen_east_of_the_block(live: LiveMap) -> None:
+    """One sector of one scan, from (25.5 N, 75.5 E) looking west: an obstacle 20 m off at east 55.5, 12 m east of
+    the short way's leg; every other sector unknown (NaN), so only that wedge is seen."""
+    d = np.full(72, np.nan)
+    d[54] = 20.0  # bearing 270: west
+    live.add_scan(25.5, 75.5, np.radians(np.arange(0.0, 360.0, 5.0)), math.radians(2.5), d, 30.0)
+
+
+def test_the_stale_map_prior_steers_away_from_unseen_space_near_an_observed_obstacle():
+    live, _ = _live(ISLAND, confirm_hits=1)
+    _seen_east_of_the_block(live)
+    start, goal = (-50.5, 0.5), (50.5, 0.5)
+    replanner = Replanner(live, goal, ALT, suspect_weight=3.0, suspect_radius_m=30.0)
+    fast = replanner.replan(start)
+    assert fast.waypoints[:, 1].max() > 40.0  # the plain search takes the short way, past the observed obstacle
+    better = replanner.refine(start, fast.waypoints)
+    assert better is not None and better.waypoints[:, 1].min() < -60.0  # the prior: round the far end
+    assert better.length_m > fast.length_m
+    assert replanner.prior_cost(better.waypoints) < replanner.prior_cost(fast.waypoints)
+    cells = [live.cell_of(*p) for p in better.waypoints[:, :2]]
+    assert all(line_of_sight(live.grid, a, b) for a, b in zip(cells[:-1], cells[1:]))  # as free as a replan's
+    assert tuple(better.waypoints[0, :2]) == start and tuple(better.waypoints[-1, :2]) == goal
+    assert replanner.refine(start, better.waypoints) is None  # nothing better than itself
+
+
+def test_the_prior_keeps_the_short_way_when_it_is_off_seen_or_there_is_nothing_observed():
+    start, goal = (-50.5, 0.5), (50.5, 0.5)
+    live, _ = _live(ISLAND, confirm_hits=1)
+    nothing = Replanner(live, goal, ALT, suspect_weight=3.0, suspect_radius_m=30.0)
+    assert nothing.suspect_weights() is None and nothing.refine(start, nothing.replan(start).waypoints) is None
+    _seen_east_of_the_block(live)
+    off = Replanner(live, goal, ALT, suspect_weight=1.0, suspect_radius_m=30.0)
+    assert off.refine(start, off.replan(start).waypoints) is None
+    on = Replanner(live, goal, ALT, suspect_weight=3.0, suspect_radius_m=30.0)
+    weights = on.suspect_weights()
+    hit = live.cell_of(25.5, 55.5)
+    assert weights[live.cell_of(25.5, 43.5)] == 3.0 and weights[live.cell_of(-40.5, -70.5)] == 1.0
+    assert weights[live.cell_of(25.5, 65.5)] == 1.0  # seen free: no doubt there
+    assert live.hits[hit]
+    # Seen free all along the short way: the prior has nothing against it.
+    live.known[:, live.cell_of(0.0, 38.0)[1]:live.cell_of(0.0, 50.0)[1]] = True
+    assert on.refine(start, on.replan(start).waypoints) is None
+
+
+def test_the_prior_rejects_weights_below_one_and_negative_radii():
+    live, _ = _live(ISLAND)
+    with pytest.raises(ValueError, match="suspect"):
+        Replanner(live, (50.5, 0.5), ALT, suspect_weight=0.5)
+    with pytest.raises(ValueError, match="suspect"):
+        Replanner(live, (50.5, 0.5), ALT, suspect_radius_m=-1.0)

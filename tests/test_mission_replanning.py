@@ -177,3 +177,69 @@ def test_the_command_lines_obstacle_map_serves_every_planner():
         assert replanner.method == ("any-angle" if planner == "any-angle" else "grid")
         route = replanner.replan((0.5, 0.5))  # nothing observed yet: the map's own route
         assert np.allclose(route.waypoints[-1, :2], (129.5, -57.5))
+
+
+class _RefiningToTheOtherSide(Replanner):
+    """A replanner whose prior always prefers the other outer street to the one the replan took."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.asked, self.via = [], None
+
+    def refine_job(self, position_ne, current_ne):
+        self.asked.append((tuple(position_ne), np.array(current_ne)))
+        side = -1.0 if float(np.mean(np.asarray(current_ne)[:, 1])) > 0 else 1.0
+        self.via = (0.5, 85.0 * side)
+        first, second = self.route_to(position_ne, self.via), self.route_to(self.via, self.goal_ne)
+        waypoints = np.vstack([first.waypoints, second.waypoints[1:]])
+        return lambda: type(first)(waypoints, 5.0, 0.0, 0, False)
+
+
+def test_a_replanned_route_is_refined_once_and_the_refined_route_is_flown():
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    obstacles = _RefiningToTheOtherSide(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT)
+    result = _mission(v, clock, obstacles, calls=[]).run()
+    assert result.completed and result.landing_error_m < 0.5
+    assert len(obstacles.asked) == len(result.replans) >= 1
+    # asked with the replanned route, from where the vehicle was one poll later
+    position, current = obstacles.asked[0]
+    assert math.dist(position, (result.replans[0].north_m, result.replans[0].east_m)) < 2.0
+    assert tuple(current[0]) == position and np.allclose(current[-1], GOAL)
+    track = result.track[:, 1:3]
+    assert np.hypot(*(track - obstacles.via).T).min() < 3.0  # flew the refined route, by the other side
+    assert result.replans[-1].refine_ms == 5.0 and "refined under the stale-map prior" in result.replans[-1].describe()
+    assert np.allclose(result.replans[-1].waypoints[-1, :2], GOAL)
+    assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
+
+
+class _RefiningBadly(Replanner):
+    """A replanner whose refinement fails, or offers a route straight through the wall it has seen."""
+
+    def __init__(self, *args, how, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.how, self.jobs = how, 0
+
+    def refine_job(self, position_ne, current_ne):
+        self.jobs += 1
+        if self.how == "raises":
+            def job():
+                raise RuntimeError("the search fell over")
+            return job
+        straight = np.array([[*position_ne, ALT, 0.0], [*GOAL, ALT, 0.0]])  # north up the walled street
+        return lambda: type(self.replan(position_ne))(straight, 1.0, 170.0, 0, False)
+
+
+@pytest.mark.parametrize("how", ["raises", "through-the-wall"])
+def test_a_refinement_that_fails_or_is_blocked_leaves_the_replanned_route(how, caplog):
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    obstacles = _RefiningBadly(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT, how=how)
+    with caplog.at_level("INFO", logger="skyroute.flight.replanning"):
+        result = _mission(v, clock, obstacles, calls=[]).run()
+    assert obstacles.jobs >= 1 and result.completed and result.landing_error_m < 0.5
+    assert _track_clearance(result.track, WALL) >= SAFETY - 1.0  # never took the straight line through the wall
+    assert all(not math.isfinite(r.refine_ms) for r in result.replans)
+    assert ("refining the route failed" if how == "raises" else "blocked by what was seen since") in caplog.text

@@ -53,7 +53,7 @@ from .landing import LandingMixin
 from .path import SmoothPath, leg_headings, path_length_m, smooth_path
 from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, SurfaceFn, Vehicle
 from .recovery import RecoveryMixin, _Abort, _Resumed
-from .replanning import ObstacleMap, ReplanningMixin, Sensing, _Blocked
+from .replanning import ObstacleMap, ReplanningMixin, Sensing, _Blocked, _Rerouted
 from .states import AIRBORNE_STATES, TRANSITIONS, IllegalTransition, MissionEvent, MissionState, next_state
 
 __all__ = [  # the mission's vocabulary, importable from here
@@ -369,7 +369,10 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             self._preflight()
             waypoints = self._plan()
             self._arm()
-            self._fly(waypoints)
+            try:
+                self._fly(waypoints)
+            finally:
+                self._stop_refining()
         except MissionError as exc:
             self._finish(exc)
             raise
@@ -537,6 +540,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                     path = self._resume_path(path)
                 except _Blocked as blocked:
                     path = self._replan_in_flight(blocked.blockage)
+                except _Rerouted as better:
+                    path = better.waypoints
             self._land()
             self._check_reached_goal()
         except MissionError:
@@ -592,6 +597,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             if self.clock() > deadline:
                 raise _Abort(self._not_reached(i, waypoints[i], i == last, deadline - start_s))
             self._sense(p, waypoints, i)
+            self._take_refined(p)
             if self.clock() - sent_at < 0.9 * self.poll_s:  # woken early by a reading: checked, nothing to send
                 self._tick(wake_on_sensor=True)
                 continue

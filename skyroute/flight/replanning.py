@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -56,6 +57,9 @@ class ObstacleMap(Protocol):
 
     def discovered_ne(self) -> np.ndarray: ...
 
+    # Optional: ``refine(position_ne, route_ne) -> Route | None``, a better route under a prior on what the map
+    # gets wrong (``Replanner.refine``), asked once the first setpoint of a replanned route is out.
+
 
 @dataclass(frozen=True)
 class ReplanRecord:
@@ -74,13 +78,16 @@ class ReplanRecord:
     braked: bool
     waypoints: np.ndarray | None
     outcome: str = "replanned"
+    refine_ms: float = math.nan
 
     def describe(self) -> str:
         """One log line."""
         what = (f"{self.outcome}: {len(self.waypoints)} waypoints" if self.waypoints is not None else self.outcome)
+        refined = (f"; then refined under the stale-map prior in {self.refine_ms:.1f} ms"
+                   if math.isfinite(self.refine_ms) else "")
         return (f"path {self.reason} {self.along_m:.1f} m ahead at ({self.north_m:.1f} N, {self.east_m:.1f} E); "
                 f"{'braked, then ' if self.braked else ''}{what}, planned in {self.plan_ms:.1f} ms, new setpoint "
-                f"{self.latency_ms:.1f} ms after the reading")
+                f"{self.latency_ms:.1f} ms after the reading{refined}")
 
 
 def braking_distance_m(speed_mps: float, decel_mps2: float, reaction_s: float = 0.3) -> float:
@@ -248,6 +255,14 @@ class _Blocked(Exception):
         self.blockage = blockage
 
 
+class _Rerouted(Exception):
+    """Internal: a better route (map waypoints from the vehicle) to switch to at once."""
+
+    def __init__(self, waypoints: np.ndarray):
+        super().__init__("rerouted")
+        self.waypoints = waypoints
+
+
 class ReplanningMixin:
     """The mission's REPLANNING state (a mixin of :class:`~.mission.Mission`; uses its vehicle, clock, progress,
     speeds, ``sensing``, ``replan_errors``, ``replan_margin_m``, ``max_replans`` and ``result``)."""
@@ -257,6 +272,9 @@ class ReplanningMixin:
     _pending: ReplanRecord | None = None
     _reading_s: float = math.nan  # arrival of the reading behind the blockage being handled
     _first_setpoint_ms: float = math.nan  # reading -> first new setpoint (the brake's, when braking)
+    _refine_due: bool = False  # a replanned route to the goal is being flown: ask for a better one once
+    _refining: Future | None = None  # that refinement, running on the worker thread
+    _refine_pool: ThreadPoolExecutor | None = None
 
     @property
     def discovered_obstacles(self) -> np.ndarray:
@@ -289,6 +307,7 @@ class ReplanningMixin:
         from .states import MissionEvent as E
 
         self._fire(E.PATH_BLOCKED)
+        self._refining = None  # a refinement of the route now blocked is moot
         self._reading_s, self._first_setpoint_ms = self.sensing.blocking_reading_s, math.nan
         if len(self.sensing.records) >= self.max_replans:
             raise _abort(f"{self.max_replans} replans and still blocked")
@@ -312,6 +331,7 @@ class ReplanningMixin:
         waypoints = self._flight_waypoints(route.waypoints, p)
         self._pending = ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
                                      float(route.plan_ms), math.nan, braked, waypoints)
+        self._refine_due = target is None
         self._say(f"obstacle on the path {blockage.along_m:.0f} m ahead ({blockage.reason}): "
                   f"{'braked and ' if braked else ''}replanned in {route.plan_ms:.0f} ms")
         self._fire(E.REPLANNED)
@@ -381,6 +401,61 @@ class ReplanningMixin:
                 latency = (self.clock() - self._reading_s) * 1e3
             self.sensing.record(ReplanRecord(rec.time_s, rec.north_m, rec.east_m, rec.reason, rec.along_m,
                                              rec.plan_ms, latency, rec.braked, rec.waypoints, rec.outcome))
+        if self._refine_due:
+            self._refine_due = False
+            self._refine()
+
+    def _refine(self) -> None:
+        """Once the replanned route's first setpoint is out: start the obstacle map's refinement under its prior
+        (``refine_job``) on a worker thread; :meth:`_take_refined` switches to its route when it is done."""
+        job_of = getattr(self.sensing.obstacles, "refine_job", None)
+        if job_of is None or self.result.waypoints is None:
+            return
+        p = self._map_position()
+        here = (p.north_m, p.east_m)
+        ahead = np.asarray(self.result.waypoints, float)[:, :2]
+        job = job_of(here, np.vstack([here, ahead[1:]]))  # the route just replanned, from one poll further on
+        if job is None:
+            return
+        if self._refine_pool is None:
+            self._refine_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="refine")
+        self._refining = self._refine_pool.submit(job)
+
+    def _take_refined(self, p) -> None:
+        """Each poll of the flight: a finished refinement with a better route that is still clear of the live
+        layer from where the vehicle is now becomes the route (raises :class:`_Rerouted`); every leg but the first
+        is the refinement's, the first starts here, a poll or a few along (the replan's own rule, too)."""
+        future = self._refining
+        if future is None or not future.done():
+            return
+        self._refining = None
+        try:
+            route = future.result()
+        except Exception as exc:  # noqa: BLE001 - a failed refinement leaves the replanned route, which is free
+            log.warning("refining the route failed (%s); flying the replanned route", exc)
+            return
+        if route is None:
+            return
+        here = (p.north_m, p.east_m)
+        if self.sensing.obstacles.check(here, np.asarray(route.waypoints, float)[1:, :2]) is not None:
+            log.info("replan: the refined route is blocked by what was seen since; flying the replanned route")
+            return
+        waypoints = self._flight_waypoints(route.waypoints, p)
+        records = self.sensing.records
+        if records and records[-1].outcome == "replanned":
+            last = records[-1]
+            records[-1] = ReplanRecord(last.time_s, last.north_m, last.east_m, last.reason, last.along_m, last.plan_ms,
+                                       last.latency_ms, last.braked, waypoints, last.outcome, float(route.plan_ms))
+        log.info("replan: refined under the stale-map prior: %d waypoints, %.0f m, searched in %.1f ms",
+                 len(waypoints), float(getattr(route, "length_m", math.nan)), float(route.plan_ms))
+        raise _Rerouted(waypoints)
+
+    def _stop_refining(self) -> None:
+        """At the end of the mission: forget a refinement in flight and let its worker thread go."""
+        self._refining = None
+        if self._refine_pool is not None:
+            self._refine_pool.shutdown(wait=False, cancel_futures=True)
+            self._refine_pool = None
 
     def _check_reached_goal(self) -> None:
         """After landing: a mission whose goal went out of reach ends in an error (the CLI exits 1)."""

@@ -20,8 +20,9 @@ vehicle can turn onto a new route without stopping first is the mission's call (
 
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,9 +33,14 @@ from skyroute.planning.cspace import nearest_free_cell, snap_start_cell
 from skyroute.planning.errors import NoPathError, PlanningError
 from skyroute.planning.livemap import LiveMap
 from skyroute.planning.pruning import headings_along, path_length, prune_path
-from skyroute.planning.search import GridPlanner
+from skyroute.planning.search import GridPlanner, load_weighted_search
 
 METHODS = ("grid", "any-angle")
+#: The stale-map prior (:meth:`Replanner.refine`): unseen cells this close to an observed obstacle (m) cost this
+#: many times their length. Chosen on the offline model of the held-out check (bench/bench_replan.py --compare-prior).
+SUSPECT_WEIGHT, SUSPECT_RADIUS_M = 3.0, 100.0
+#: Coarse cell (m) of the distance to the nearest observed obstacle behind the prior.
+_SUSPECT_CELL_M = 4
 
 
 class GoalBlocked(PlanningError):
@@ -103,10 +109,19 @@ class Replanner:
         altitudes); :meth:`fallback` picks among them.
     step_m : float
         Sampling step of :meth:`check` along the path (finer than a cell).
+    suspect_weight, suspect_radius_m : float
+        The stale-map prior of :meth:`refine`: a cell never seen within ``suspect_radius_m`` of an observed
+        obstacle costs ``suspect_weight`` times its length (1 turns the prior off).
     """
 
     def __init__(self, live: LiveMap, goal_ne: Sequence[float], altitude_m: float, *, look_ahead_m: float = 60.0,
-                 method: str = "grid", landable: np.ndarray | None = None, step_m: float = 0.25) -> None:
+                 method: str = "grid", landable: np.ndarray | None = None, step_m: float = 0.25,
+                 suspect_weight: float = SUSPECT_WEIGHT, suspect_radius_m: float = SUSPECT_RADIUS_M) -> None:
+        if not suspect_weight >= 1.0 or not suspect_radius_m >= 0.0:
+            raise ValueError(f"suspect weight must be >= 1 and radius >= 0, not {suspect_weight}, {suspect_radius_m}")
+        self.suspect_weight, self.suspect_radius_m = float(suspect_weight), float(suspect_radius_m)
+        if self.suspect_weight > 1.0 and self.suspect_radius_m > 0.0:
+            load_weighted_search()  # compiled (or loaded from numba's disk cache) before the flight, not in it
         if method not in METHODS:
             raise ValueError(f"unknown replanning method {method!r}; choose from {METHODS}")
         self.live, self.goal_ne, self.altitude_m = live, (float(goal_ne[0]), float(goal_ne[1])), float(altitude_m)
@@ -233,17 +248,113 @@ class Replanner:
             path = planner.plan(start, goal)
         except NoPathError as exc:
             raise GoalUnreachable(self.goal_ne, self.fallback(position_ne)) from exc
-        cells = prune_path(live.grid, path.cells)
+        points = self._points(path.cells, position_ne, snapped)
+        waypoints = np.column_stack([points, np.full(len(points), self.altitude_m), headings_along(points)])
+        plan_ms = (time.perf_counter() - t0) * 1e3
+        return Replan(waypoints, plan_ms, path_length(points), path.expanded, snapped)
+
+    # ------------------------------------------------------------------------------ the stale-map prior
+    def suspect_weights(self) -> np.ndarray | None:
+        """Per-cell cost factors of the prior, ``(n, m)``, or None when it adds nothing (no observed obstacle, or
+        turned off): ``suspect_weight`` on cells never seen (neither free nor hit) within ``suspect_radius_m`` of
+        an observed obstacle cell (measured on a 4 m coarse grid), 1 elsewhere."""
+        live = self.live
+        if self.suspect_weight <= 1.0 or self.suspect_radius_m <= 0.0 or not live.hits.any():
+            return None
+        f = _SUSPECT_CELL_M
+        n, m = live.shape
+        hits = np.zeros((-(-n // f) * f, -(-m // f) * f), bool)
+        hits[:n, :m] = live.hits
+        coarse = hits.reshape(hits.shape[0] // f, f, hits.shape[1] // f, f).any(axis=(1, 3))
+        near = ndimage.distance_transform_edt(~coarse) * f <= self.suspect_radius_m
+        near = np.repeat(np.repeat(near, f, axis=0), f, axis=1)[:n, :m]
+        return np.where(near & ~live.known, self.suspect_weight, 1.0)
+
+    def prior_cost(self, points_ne: np.ndarray, weights: np.ndarray | None = None) -> float:
+        """A route's length under the prior: metres along ``points_ne`` (``(K, 2)`` map) times the weight of the
+        cell under each half-metre sample (its plain length without the prior)."""
+        points = np.asarray(points_ne, float)[:, :2]
+        weights = self.suspect_weights() if weights is None else weights
+        if weights is None:
+            return path_length(points)
+        live, total = self.live, 0.0
+        n, m = live.shape
+        for a, b in zip(points[:-1], points[1:]):
+            length = float(np.hypot(*(b - a)))
+            if length < 1e-9:
+                continue
+            k = max(1, int(math.ceil(length / 0.5)))
+            mid = a + (np.arange(k)[:, None] + 0.5) / k * (b - a)
+            cells = np.floor(mid - (live.north_offset, live.east_offset)).astype(np.int64)
+            ci, cj = np.clip(cells[:, 0], 0, n - 1), np.clip(cells[:, 1], 0, m - 1)
+            total += length / k * float(weights[ci, cj].sum())
+        return total
+
+    def refine(self, position_ne: Sequence[float], current_ne: np.ndarray, *, min_gain: float = 0.02) -> Replan | None:
+        """A route to the goal under the stale-map prior, or None when it would not be better than ``current_ne``
+        (the route flown now, ``(K, 2+)`` map points from the vehicle) by more than ``min_gain`` of its cost.
+
+        Where the map was found wrong it is likely wrong nearby too (a wall across a street continues beyond
+        what the sensor saw; a street blocked once is often blocked again further on): the search (textbook A*
+        with per-cell costs, :meth:`~.search.GridPlanner.plan_weighted`) makes unseen cells near observed
+        obstacles dearer (:meth:`suspect_weights`), so the route keeps away from them when another is not much
+        longer. Every leg is free on the live grid, as :meth:`replan`'s; only the choice among routes differs.
+        Slower than :meth:`replan` (tens of ms on SF), so the mission flies :meth:`replan`'s route first and runs
+        this off its loop (:meth:`refine_job`).
+        """
+        job = self.refine_job(position_ne, current_ne, min_gain=min_gain)
+        return None if job is None else job()
+
+    def refine_job(self, position_ne: Sequence[float], current_ne: np.ndarray, *,
+                   min_gain: float = 0.02) -> Callable[[], Replan | None] | None:
+        """:meth:`refine` in two halves: this one reads the live layer now (its weights and a copy of its grid)
+        and returns None at once when there is nothing to gain; the callable it returns does the search on that
+        snapshot, touches nothing the sensing step changes, and may run on another thread (the search releases
+        the GIL)."""
+        weights = self.suspect_weights()
+        if weights is None or self.goal_blocked():
+            return None
+        current_ne = np.asarray(current_ne, float)[:, :2]
+        current = self.prior_cost(current_ne, weights)
+        if current <= (1.0 + min_gain) * path_length(current_ne):
+            return None  # it crosses no doubtful cell: no route is cheaper under the prior than the shortest
+        live = self.live
+        start, snapped = self._start_cell(position_ne)
+        goal = live.cell_of(*self.goal_ne)
+        grid, goal_ne = live.grid.copy(), self.goal_ne
+        here = tuple(float(v) for v in position_ne[:2])
+
+        def search() -> Replan | None:
+            t0 = time.perf_counter()
+            try:  # a cell path costs up to ~8 % more than its pruned legs: search no further than could still win
+                path = GridPlanner(grid, method="astar").plan_weighted(start, goal, weights,
+                                                                       max_cost=1.1 * current + 2.0)
+            except PlanningError:
+                return None
+            points = self._points(path.cells, here, snapped, grid, goal_ne)
+            if current - self.prior_cost(points, weights) <= min_gain * current:
+                return None
+            waypoints = np.column_stack([points, np.full(len(points), self.altitude_m), headings_along(points)])
+            return Replan(waypoints, (time.perf_counter() - t0) * 1e3, path_length(points), path.expanded, snapped)
+
+        return search
+
+    def _points(self, path_cells: np.ndarray, position_ne: Sequence[float], snapped: bool,
+                grid: np.ndarray | None = None, goal_ne: Sequence[float] | None = None) -> np.ndarray:
+        """A searched cell path pruned (and pulled taut for any-angle) on ``grid`` (default: the live grid) into
+        map points from the vehicle to ``goal_ne`` (default: the goal)."""
+        live = self.live
+        grid = live.grid if grid is None else grid
+        goal_ne = self.goal_ne if goal_ne is None else goal_ne
+        cells = prune_path(grid, path_cells)
         if self.method == "any-angle":
-            cells = any_angle.taut_path(live.grid, cells)[0]
+            cells = any_angle.taut_path(grid, cells)[0]
         points = cells + (live.north_offset + 0.5, live.east_offset + 0.5)
         here = np.asarray(position_ne, float)[:2]
         points = np.vstack([here, points if snapped else points[1:]]) if len(points) > 1 else np.vstack([here,
                                                                                                         points])
-        points[-1] = self.goal_ne  # the goal itself (within its cell, which is free)
-        waypoints = np.column_stack([points, np.full(len(points), self.altitude_m), headings_along(points)])
-        plan_ms = (time.perf_counter() - t0) * 1e3
-        return Replan(waypoints, plan_ms, path_length(points), path.expanded, snapped)
+        points[-1] = goal_ne  # the goal itself (within its cell, which is free)
+        return points
 
     def fallback(self, position_ne: Sequence[float]) -> tuple[float, float] | None:
         """The free (and landable) cell centre nearest the goal that the vehicle can reach from ``position_ne``

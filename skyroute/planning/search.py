@@ -69,12 +69,11 @@ class GridPlanner:
         self.grid = grid
         n, m = grid.shape
         self._width = m + 2
+        self._blocked: np.ndarray | None = None
         if method == "jps":  # the grid as bits, rows and columns, with what its straight scans need (kernels.bits)
             self._bits = (kernels.scan_tables(kernels.pack_rows(grid)), kernels.scan_tables(kernels.pack_columns(grid)))
         else:
-            padded = np.ones((n + 2, m + 2), dtype=np.bool_)
-            padded[1:-1, 1:-1] = grid
-            self._blocked = padded.ravel()
+            self._padded_blocked()
         _load(method)
 
     def _flat(self, cell: tuple[int, int]) -> int:
@@ -119,6 +118,43 @@ class GridPlanner:
         cells = np.column_stack((flat // self._width - 1, flat % self._width - 1))
         return GridPath(cells, float(cost), int(expanded), int(entries))
 
+    def plan_weighted(self, start: Sequence[int], goal: Sequence[int], weights: np.ndarray,
+                      max_cost: float = math.inf) -> GridPath:
+        """Cheapest path when a step costs its length times the mean ``weights`` (``(n, m)``, every value >= 1)
+        of the two cells it joins: the same graph as :meth:`plan`, textbook A* (``cost`` in weighted cells).
+
+        >>> grid = np.zeros((3, 5), dtype=bool)
+        >>> weights = np.ones((3, 5)); weights[0, 1:4] = 5.0   # the straight row is dear: go round by row 1
+        >>> GridPlanner(grid).plan_weighted((0, 0), (0, 4), weights).cells[:, 0].max()
+        np.int64(1)
+
+        Raises as :meth:`plan`; ValueError if ``weights`` has another shape or a value below 1.
+        """
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != self.grid.shape:
+            raise ValueError(f"weights {weights.shape} and grid {self.grid.shape} differ in shape")
+        if not weights.min(initial=1.0) >= 1.0:
+            raise ValueError("every weight must be at least 1 (the heuristic assumes it)")
+        start = self.check_cell("start", start)
+        goal = self.check_cell("goal", goal)
+        padded = np.ones((self.grid.shape[0] + 2, self._width), dtype=np.float64)
+        padded[1:-1, 1:-1] = weights
+        flat, cost, expanded, entries = kernels.weighted_astar(self._padded_blocked(), padded.ravel(), self._width,
+                                                               self._flat(start), self._flat(goal), float(max_cost))
+        if cost < 0:
+            raise NoPathError(start, goal, expanded)
+        cells = np.column_stack((flat // self._width - 1, flat % self._width - 1))
+        return GridPath(cells, float(cost), int(expanded), int(entries))
+
+    def _padded_blocked(self) -> np.ndarray:
+        """The grid with a blocked border, flattened (what the textbook searches read); made once."""
+        if self._blocked is None:
+            n, m = self.grid.shape
+            padded = np.ones((n + 2, m + 2), dtype=np.bool_)
+            padded[1:-1, 1:-1] = self.grid
+            self._blocked = padded.ravel()
+        return self._blocked
+
 
 def _load(method: str) -> None:
     """Load (or compile) the kernels of ``method`` with the argument types :meth:`GridPlanner.plan` uses, so that
@@ -130,7 +166,15 @@ def _load(method: str) -> None:
     else:
         padded = np.ones((3, 3), np.bool_)
         padded[1, 1] = False
-        kernels.astar(padded.ravel(), 3, 4, 4, math.inf)
+        if method == "weighted":
+            kernels.weighted_astar(padded.ravel(), np.ones(9), 3, 4, 4, math.inf)
+        else:
+            kernels.astar(padded.ravel(), 3, 4, 4, math.inf)
+
+
+def load_weighted_search() -> None:
+    """Load (or compile) :meth:`GridPlanner.plan_weighted`'s kernel now, before it is needed in flight."""
+    _load("weighted")
 
 
 def heuristic(position: Sequence[float], goal_position: Sequence[float]) -> float:

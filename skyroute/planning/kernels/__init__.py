@@ -57,7 +57,7 @@ from numba import njit  # noqa: E402
 from numba.core import event  # noqa: E402
 
 from skyroute.planning.kernels.bits import pack_columns, pack_rows, scan_tables  # noqa: E402
-from skyroute.planning.kernels.gridsearch import SQRT2, astar, jps, octile  # noqa: E402
+from skyroute.planning.kernels.gridsearch import SQRT2, astar, jps, octile, weighted_astar  # noqa: E402
 from skyroute.planning.kernels.heap import heap_pop, heap_push, new_heap  # noqa: E402
 from skyroute.planning.kernels.lines import prune_los_mask, walk_supercover  # noqa: E402
 from skyroute.planning.kernels.raster import rasterise, rasterise_max  # noqa: E402
@@ -65,7 +65,7 @@ from skyroute.planning.kernels.raster import rasterise, rasterise_max  # noqa: E
 __all__ = [
     "SQRT2", "astar", "heap_pop", "heap_push", "jps", "new_heap", "njit", "octile",
     "on_first_compile", "pack_columns", "pack_rows", "prune_los_mask", "rasterise", "rasterise_max", "scan_tables",
-    "walk_supercover",
+    "walk_supercover", "weighted_astar",
 ]
 
 

@@ -1,7 +1,7 @@
 """Replanning latency on SF: sensor message in -> new setpoints out, against a from-scratch plan in the same run.
 
     python bench/bench_replan.py [--map SF.csv] [--routes 12] [--walls 2] [--seed 0] [--sectors px4|ardupilot]
-                                 [--compare-prior]
+                                 [--compare-prior] [--heldout 11,12,13]
 
 For each of ``--routes`` random SF missions (start and goal free at 5 m with a 5 m margin, at least 300 m apart),
 ``skyroute.cityedit`` puts ``--walls`` walls across the route the grid planner takes on the map; the client's side
@@ -24,7 +24,9 @@ on its own row (not part of the latency: the vehicle already flies a free route)
 
 ``--compare-prior`` moves each mission a second time without the prior and prints the metres moved against the
 true map's route (the grid route in the changed city), both ways: the offline model of issue 11's airborne-time
-bar (held-out flights take a few percent longer than their metres, for the turns).
+bar (held-out flights take a few percent longer than their metres, for the turns). ``--heldout SEEDS`` draws the
+missions and walls as ``bench/heldout_replan.py`` does with those seeds (5 missions each, 300-700 m), so the
+model can be set beside those flights.
 """
 
 from __future__ import annotations
@@ -168,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sectors", choices=("px4", "ardupilot"), default="px4")
     p.add_argument("--compare-prior", action="store_true",
                    help="also move each mission without the stale-map prior and compare the metres moved")
+    p.add_argument("--heldout", default=None, metavar="SEEDS",
+                   help="instead of --routes random missions: bench/heldout_replan.py's 5 missions per seed "
+                        "(comma-separated), walls drawn with its seeds")
     args = p.parse_args(argv)
     path = args.map or sfmap.local_copy() or REPO / "colliders.csv"
     city = read_colliders(path)
@@ -181,11 +186,17 @@ def main(argv: list[str] | None = None) -> int:
         max_steps=5)
     outcomes = []
     moved: dict[str, list[float]] = {"with the prior": [], "without": []}
-    for k in range(args.routes):
-        start, goal = _random_mission(gm, rng)
+    if args.heldout:
+        from heldout_replan import missions as heldout_missions
+
+        drawn = [(start, goal, seed + k) for seed in (int(v) for v in args.heldout.split(","))
+                 for k, (start, goal) in enumerate(heldout_missions(gm, 5, seed))]
+    else:
+        drawn = [(*_random_mission(gm, rng), args.seed + k) for k in range(args.routes)]
+    for start, goal, wall_seed in drawn:
         try:
             change = walls_across_route(stale, start, goal, altitude_m=ALT_M, safety_m=SAFETY_M, count=args.walls,
-                                        seed=args.seed + k)
+                                        seed=wall_seed)
         except (PlanningError, ValueError) as exc:
             outcomes.append(f"skipped ({exc})")
             continue
@@ -199,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
             if without == "goal":
                 moved["with the prior"].append(metres / true_m)
                 moved["without"].append(without_m / true_m)
-    print(f"map {path}: {args.routes} missions, {args.walls} walls across each route, {args.sectors} sectors")
+    print(f"map {path}: {len(drawn)} missions, {args.walls} walls across each route, {args.sectors} sectors")
     print("outcomes: " + ", ".join(f"{o} x{outcomes.count(o)}" for o in sorted(set(outcomes))))
     print(f"{'row':<44} {'n':>5} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8}")
     rows = [("scan in -> path checked (no replan)", timings["check_ms"]),

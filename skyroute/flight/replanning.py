@@ -308,7 +308,10 @@ class ReplanningMixin:
 
         self._fire(E.PATH_BLOCKED)
         self._refining = None  # a refinement of the route now blocked is moot
-        self._reading_s, self._first_setpoint_ms = self.sensing.blocking_reading_s, math.nan
+        if self._pending is None:
+            self._reading_s, self._first_setpoint_ms = self.sensing.blocking_reading_s, math.nan
+        # else the last replan's route was blocked before its first setpoint went out (seen more while braking):
+        # this one answers the same reading, and a brake setpoint already sent for it still counts as the answer
         if len(self.sensing.records) >= self.max_replans:
             raise _abort(f"{self.max_replans} replans and still blocked")
         t = self.vehicle.telemetry

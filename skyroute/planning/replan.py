@@ -258,17 +258,19 @@ class Replanner:
         """Per-cell cost factors of the prior, ``(n, m)``, or None when it adds nothing (no observed obstacle, or
         turned off): ``suspect_weight`` on cells never seen (neither free nor hit) within ``suspect_radius_m`` of
         an observed obstacle cell (measured on a 4 m coarse grid), 1 elsewhere."""
-        live = self.live
-        if self.suspect_weight <= 1.0 or self.suspect_radius_m <= 0.0 or not live.hits.any():
+        if self.suspect_weight <= 1.0 or self.suspect_radius_m <= 0.0 or not self.live.hits.any():
             return None
+        return self._weights(self.live.hits, self.live.known)
+
+    def _weights(self, hits: np.ndarray, known: np.ndarray) -> np.ndarray:
         f = _SUSPECT_CELL_M
-        n, m = live.shape
-        hits = np.zeros((-(-n // f) * f, -(-m // f) * f), bool)
-        hits[:n, :m] = live.hits
-        coarse = hits.reshape(hits.shape[0] // f, f, hits.shape[1] // f, f).any(axis=(1, 3))
+        n, m = hits.shape
+        padded = np.zeros((-(-n // f) * f, -(-m // f) * f), bool)
+        padded[:n, :m] = hits
+        coarse = padded.reshape(padded.shape[0] // f, f, padded.shape[1] // f, f).any(axis=(1, 3))
         near = ndimage.distance_transform_edt(~coarse) * f <= self.suspect_radius_m
         near = np.repeat(np.repeat(near, f, axis=0), f, axis=1)[:n, :m]
-        return np.where(near & ~live.known, self.suspect_weight, 1.0)
+        return np.where(near & ~known, self.suspect_weight, 1.0)
 
     def prior_cost(self, points_ne: np.ndarray, weights: np.ndarray | None = None) -> float:
         """A route's length under the prior: metres along ``points_ne`` (``(K, 2)`` map) times the weight of the
@@ -307,25 +309,25 @@ class Replanner:
 
     def refine_job(self, position_ne: Sequence[float], current_ne: np.ndarray, *,
                    min_gain: float = 0.02) -> Callable[[], Replan | None] | None:
-        """:meth:`refine` in two halves: this one reads the live layer now (its weights and a copy of its grid)
-        and returns None at once when there is nothing to gain; the callable it returns does the search on that
-        snapshot, touches nothing the sensing step changes, and may run on another thread (the search releases
-        the GIL)."""
-        weights = self.suspect_weights()
-        if weights is None or self.goal_blocked():
-            return None
-        current_ne = np.asarray(current_ne, float)[:, :2]
-        current = self.prior_cost(current_ne, weights)
-        if current <= (1.0 + min_gain) * path_length(current_ne):
-            return None  # it crosses no doubtful cell: no route is cheaper under the prior than the shortest
+        """:meth:`refine` in two halves: this one copies what it needs of the live layer (its grid, hits and seen
+        cells: well under a millisecond on SF) and returns None at once when the prior is off or has nothing to go
+        on; the callable it returns does the rest on that copy (the weights, ~10 ms on SF, and the search, which
+        releases the GIL), touches nothing the sensing step changes, and may run on another thread."""
         live = self.live
+        if self.suspect_weight <= 1.0 or self.suspect_radius_m <= 0.0 or not live.hits.any() or self.goal_blocked():
+            return None
+        current_ne = np.asarray(current_ne, float)[:, :2].copy()
         start, snapped = self._start_cell(position_ne)
         goal = live.cell_of(*self.goal_ne)
-        grid, goal_ne = live.grid.copy(), self.goal_ne
+        grid, hits, known, goal_ne = live.grid.copy(), live.hits.copy(), live.known.copy(), self.goal_ne
         here = tuple(float(v) for v in position_ne[:2])
 
         def search() -> Replan | None:
             t0 = time.perf_counter()
+            weights = self._weights(hits, known)
+            current = self.prior_cost(current_ne, weights)
+            if current <= (1.0 + min_gain) * path_length(current_ne):
+                return None  # it crosses no doubtful cell: no route is cheaper under the prior than the shortest
             try:  # a cell path costs up to ~8 % more than its pruned legs: search no further than could still win
                 path = GridPlanner(grid, method="astar").plan_weighted(start, goal, weights,
                                                                        max_cost=1.1 * current + 2.0)

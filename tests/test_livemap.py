@@ -284,3 +284,21 @@ def test_the_prior_rejects_weights_below_one_and_negative_radii():
         Replanner(live, (50.5, 0.5), ALT, suspect_weight=0.5)
     with pytest.raises(ValueError, match="suspect"):
         Replanner(live, (50.5, 0.5), ALT, suspect_radius_m=-1.0)
+
+
+def test_a_wall_seen_obliquely_is_placed_on_its_face_not_in_front_of_it():
+    # An east-west wall 15 m north of the sensor: its far parts are seen at up to 60 degrees from the normal, where
+    # a 5 degree sector's whole arc lies up to ~2.5 m in front of the face (on the sensor's side).
+    posts = np.array([[-99.5, -99.5, 0.5, 0.5, 0.5, 0.5], [99.5, 99.5, 0.5, 0.5, 0.5, 0.5]])
+    wall = np.array([[16.0, 0.5, 15.0, 1.0, 60.0, 15.0]])
+    live, _ = _live(posts, confirm_hits=1)
+    live.add_scan(0.5, 0.5, *_scan(np.vstack([posts, wall]), (0.5, 0.5), 72), 30.0)
+    hits = live.hit_cells_ne()
+    assert len(hits) > 0 and hits[:, 1].min() < -20.0 and hits[:, 1].max() > 20.0  # seen across +-60 degrees
+    # every hit cell's centre within a cell's diagonal of the face (the whole arcs were up to 2.5 m off)
+    assert _distance_to_boxes(hits, wall).max() <= 1.0
+    # ArduPilot's 45 degree sectors keep the whole arc: which part holds the point is not known
+    live8, _ = _live(posts, confirm_hits=1)
+    bearings, half, d = _scan(np.vstack([posts, wall]), (0.5, 0.5), 8)
+    live8.add_scan(0.5, 0.5, bearings, half, d, 30.0)
+    assert _distance_to_boxes(live8.hit_cells_ne(), wall).max() > 5.0

@@ -6,7 +6,10 @@ the autopilot streams obstacle data), and the command line injects an :class:`Ob
 ``Replanner``: a live occupancy layer over the planning grid and the replanning on it). :class:`Sensing` joins the
 two each poll: it feeds every horizontal reading to the map at the vehicle's map position and checks the rest of
 the path; the mission turns a blockage into PATH_BLOCKED -> REPLANNING -> WAYPOINT (see ``states``), braking to a
-hold first when the vehicle could not stop short of the obstacle (:func:`can_turn_in_time`).
+hold first when the vehicle could not stop short of the obstacle (:func:`can_turn_in_time`). Once the new route's
+first setpoint is out, the map's refinement under its stale-map prior (``refine_job``) runs on a worker thread and,
+if it finds a better route that is still clear when it is done, the vehicle switches to it (no new event: the
+state stays WAYPOINT; the replan's record keeps the refined route).
 
 Latency: a :class:`ReplanRecord`'s ``latency_ms`` runs from the arrival of the oldest reading of the poll that
 found the blockage (our monotonic clock, stamped by the link's reader) to the first setpoint of the new path, or
@@ -19,7 +22,7 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -57,8 +60,9 @@ class ObstacleMap(Protocol):
 
     def discovered_ne(self) -> np.ndarray: ...
 
-    # Optional: ``refine(position_ne, route_ne) -> Route | None``, a better route under a prior on what the map
-    # gets wrong (``Replanner.refine``), asked once the first setpoint of a replanned route is out.
+    # Optional: ``refine_job(position_ne, route_ne) -> (() -> Route | None) | None``, the search for a better
+    # route under a prior on what the map gets wrong (``Replanner.refine_job``), started once the first setpoint of
+    # a replanned route is out and run on a worker thread.
 
 
 @dataclass(frozen=True)
@@ -446,9 +450,7 @@ class ReplanningMixin:
         waypoints = self._flight_waypoints(route.waypoints, p)
         records = self.sensing.records
         if records and records[-1].outcome == "replanned":
-            last = records[-1]
-            records[-1] = ReplanRecord(last.time_s, last.north_m, last.east_m, last.reason, last.along_m, last.plan_ms,
-                                       last.latency_ms, last.braked, waypoints, last.outcome, float(route.plan_ms))
+            records[-1] = replace(records[-1], waypoints=waypoints, refine_ms=float(route.plan_ms))
         log.info("replan: refined under the stale-map prior: %d waypoints, %.0f m, searched in %.1f ms",
                  len(waypoints), float(getattr(route, "length_m", math.nan)), float(route.plan_ms))
         raise _Rerouted(waypoints)

@@ -11,6 +11,10 @@ The live layer is 2D, at the flight altitude: every 2D planner replans this way 
 from its own structure, a new one from the grid search, which is optimal on the same grid), and observed
 obstacles count as reaching above the altitude (their tops were never seen), so a replan never climbs over them.
 
+:meth:`Replanner.refine` then picks again among the detours under a stale-map prior: unseen cells near observed
+obstacles cost more (a wall seen in part likely continues; a street blocked once is often blocked again), searched
+with per-cell costs; slower, so the mission runs it off its loop (:meth:`Replanner.refine_job`).
+
 When the goal cannot be reached any more, :meth:`Replanner.fallback` finds the nearest safe point that can:
 free on the live grid (and landable, if a landing grid is given), in the vehicle's connected free space.
 

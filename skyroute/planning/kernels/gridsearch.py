@@ -78,6 +78,22 @@ def _trace(keys, parent, goal, width):
 @njit(cache=True)
 def astar(blocked, width, start, goal, max_cost):
     """Textbook A* from flat cell ``start`` to ``goal``: ``(path, cost, expanded, slots)``."""
+    return _astar(blocked, np.empty(0), width, start, goal, max_cost)
+
+
+@njit(cache=True, nogil=True)
+def weighted_astar(blocked, weight, width, start, goal, max_cost):
+    """A* where entering and leaving a cell costs its ``weight`` (flat like ``blocked``, every value >= 1): a
+    step costs its length times the mean weight of its two cells. The octile heuristic stays admissible (weights
+    >= 1), so the path is optimal for those costs: ``(path, cost, expanded, slots)`` as :func:`astar`. It releases
+    the GIL: the mission runs it on a worker thread while it flies on."""
+    return _astar(blocked, weight, width, start, goal, max_cost)
+
+
+@njit(cache=True, nogil=True)
+def _astar(blocked, weight, width, start, goal, max_cost):
+    """Both of the above: ``weight`` empty for unit costs."""
+    weighted = weight.shape[0] > 0
     gi, gj = goal // width, goal % width
     # Neighbour offsets: 4 straight moves, then 4 diagonals as (north step, east step) pairs.
     d_north = np.array([width, -width, 0, 0, width, width, -width, -width])
@@ -108,51 +124,9 @@ def astar(blocked, width, start, goal, max_cost):
                 if blocked[v + d_north[n]] or blocked[v + d_east[n]]:
                     continue
                 step = SQRT2
+            if weighted:
+                step *= 0.5 * (weight[v] + weight[w])
             gw = gv + step
-            keys, g, parent, closed, count, t = claim(keys, g, parent, closed, count, w)
-            if closed[t] or gw >= g[t]:
-                continue
-            g[t], parent[t] = gw, v
-            hf, hg, hv, size = heap_push(hf, hg, hv, size, gw + octile(w // width, w % width, gi, gj), gw, w)
-    return np.empty(0, np.int64), -1.0, expanded, keys.shape[0]
-
-
-@njit(cache=True, nogil=True)
-def weighted_astar(blocked, weight, width, start, goal, max_cost):
-    """A* where entering and leaving a cell costs its ``weight`` (flat like ``blocked``, every value >= 1): a
-    step costs its length times the mean weight of its two cells. The octile heuristic stays admissible (weights
-    >= 1), so the path is optimal for those costs: ``(path, cost, expanded, slots)`` as :func:`astar`. It releases
-    the GIL: the mission runs it on a worker thread while it flies on."""
-    gi, gj = goal // width, goal % width
-    d_north = np.array([width, -width, 0, 0, width, width, -width, -width])
-    d_east = np.array([0, 0, 1, -1, 1, -1, 1, -1])
-    keys, g, parent, closed = new_table(_FIRST_SLOTS)
-    keys, g, parent, closed, count, s = claim(keys, g, parent, closed, 0, start)
-    g[s] = 0.0
-    hf, hg, hv = new_heap()
-    hf, hg, hv, size = heap_push(hf, hg, hv, 0, octile(start // width, start % width, gi, gj), 0.0, start)
-    expanded = 0
-    while size > 0:
-        v, fv, gv, size = heap_pop(hf, hg, hv, size)
-        if fv >= max_cost:
-            break
-        s = find(keys, v)
-        if closed[s] or gv > g[s]:
-            continue  # a stale duplicate
-        closed[s] = True
-        expanded += 1
-        if v == goal:
-            return _trace(keys, parent, goal, width), gv, expanded, keys.shape[0]
-        for n in range(8):
-            w = v + d_north[n] + d_east[n]
-            if blocked[w]:
-                continue
-            step = 1.0
-            if n >= 4:  # diagonal: both orthogonal cells must be free (no corner cutting)
-                if blocked[v + d_north[n]] or blocked[v + d_east[n]]:
-                    continue
-                step = SQRT2
-            gw = gv + step * 0.5 * (weight[v] + weight[w])
             keys, g, parent, closed, count, t = claim(keys, g, parent, closed, count, w)
             if closed[t] or gw >= g[t]:
                 continue

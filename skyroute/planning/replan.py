@@ -262,9 +262,13 @@ class Replanner:
         """Per-cell cost factors of the prior, ``(n, m)``, or None when it adds nothing (no observed obstacle, or
         turned off): ``suspect_weight`` on cells never seen (neither free nor hit) within ``suspect_radius_m`` of
         an observed obstacle cell (measured on a 4 m coarse grid), 1 elsewhere."""
-        if self.suspect_weight <= 1.0 or self.suspect_radius_m <= 0.0 or not self.live.hits.any():
+        if not self._prior_applies():
             return None
         return self._weights(self.live.hits, self.live.known)
+
+    def _prior_applies(self) -> bool:
+        """The prior is on and has something to go on (an observed obstacle)."""
+        return self.suspect_weight > 1.0 and self.suspect_radius_m > 0.0 and bool(self.live.hits.any())
 
     def _weights(self, hits: np.ndarray, known: np.ndarray) -> np.ndarray:
         f = _SUSPECT_CELL_M
@@ -318,7 +322,7 @@ class Replanner:
         on; the callable it returns does the rest on that copy (the weights, ~10 ms on SF, and the search, which
         releases the GIL), touches nothing the sensing step changes, and may run on another thread."""
         live = self.live
-        if self.suspect_weight <= 1.0 or self.suspect_radius_m <= 0.0 or not live.hits.any() or self.goal_blocked():
+        if not self._prior_applies() or self.goal_blocked():
             return None
         current_ne = np.asarray(current_ne, float)[:, :2].copy()
         start, snapped = self._start_cell(position_ne)

@@ -41,8 +41,9 @@ sys.path.insert(0, str(ROOT))
 
 from skyroute.cli.exits import UserError  # noqa: E402
 from skyroute.cli.setting import check_endpoint, load_setting, make_plan  # noqa: E402
+from tests.geodesy import distance_m  # noqa: E402 (the campaign's own WGS84, not the client's)
+from tests.geodesy import ned_to_latlon as to_latlon  # noqa: E402
 
-WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
 ALT_M, SAFETY_M = 5.0, 5.0
 MIXES = {
     "loss10": ["--packet-loss", "10"],
@@ -56,24 +57,6 @@ def default_map() -> Path:
     shared = Path(os.environ["SKYROUTE_SHARED"]) if os.environ.get("SKYROUTE_SHARED") else ROOT.parent / "shared"
     sf = shared / "maps" / "udacity_sf_colliders.csv"
     return sf if sf.exists() else ROOT / "colliders.csv"
-
-
-def _radii_m(lat_deg: float) -> tuple[float, float]:
-    e2 = WGS84_F * (2 - WGS84_F)
-    w = 1 - e2 * math.sin(math.radians(lat_deg)) ** 2
-    return WGS84_A_M * (1 - e2) / w**1.5, WGS84_A_M / math.sqrt(w)
-
-
-def to_latlon(north_m: float, east_m: float, lat0: float, lon0: float) -> tuple[float, float]:
-    meridional, normal = _radii_m(lat0)
-    return (lat0 + math.degrees(north_m / meridional),
-            lon0 + math.degrees(east_m / (normal * math.cos(math.radians(lat0)))))
-
-
-def distance_m(lat_a: float, lon_a: float, lat_b: float, lon_b: float) -> float:
-    meridional, normal = _radii_m(lat_a)
-    return math.hypot(math.radians(lat_b - lat_a) * meridional,
-                      math.radians(lon_b - lon_a) * normal * math.cos(math.radians(lat_a)))
 
 
 def pick_missions(map_path: Path, count: int, seed: int) -> list[dict]:

@@ -43,3 +43,8 @@ def tolerance_m(distance_m: float, lat0_deg: float) -> float:
     ``lat0_deg``: ``d^2 (tan(lat) / 2 + 1/4) / R`` plus a millimetre (at least 1.1 times the worst error seen
     between 0 and 60 degrees of latitude, out to 10 km)."""
     return distance_m**2 * (abs(math.tan(math.radians(lat0_deg))) / 2 + 0.25) / EARTH_RADIUS_M + 1e-3
+
+
+def distance_m(lat_a: float, lon_a: float, lat_b: float, lon_b: float) -> float:
+    """Horizontal distance (m) between two nearby points, flat at the first one's latitude."""
+    return math.hypot(*latlon_to_ned(lat_b, lon_b, lat_a, lon_a))

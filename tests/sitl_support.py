@@ -7,7 +7,7 @@ ports are free (a hand-run instance or a parallel run cannot clash), and is stop
 
 :class:`Monitor` is a second MAVLink connection on the autopilot's ground-station port that records what the
 vehicle reports and checks it against the map's boxes with its own point-to-box distance and its own local
-WGS84 approximation: it shares no code with the client or the planner.
+WGS84 approximation (:mod:`tests.geodesy`): it shares no code with the client or the planner.
 """
 
 from __future__ import annotations
@@ -27,9 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from tests import shared
+from tests.geodesy import latlon_to_ned as to_north_east  # noqa: F401 (the tests import them from here)
+from tests.geodesy import ned_to_latlon as to_latlon  # noqa: F401
 
 ROOT = Path(__file__).resolve().parents[1]
-WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
 
 
 shared_dir = shared.shared_dir  # the one rule (tests/shared.py): $SKYROUTE_SHARED, else ../shared
@@ -62,25 +63,6 @@ def px4_binary() -> Path | None:
 
 
 # ------------------------------------------------------------------------------------------------ geometry
-def _radii_m(lat_deg: float) -> tuple[float, float]:
-    e2 = WGS84_F * (2 - WGS84_F)
-    w = 1 - e2 * math.sin(math.radians(lat_deg)) ** 2
-    return WGS84_A_M * (1 - e2) / w**1.5, WGS84_A_M / math.sqrt(w)
-
-
-def to_latlon(north_m: float, east_m: float, lat0: float, lon0: float) -> tuple[float, float]:
-    """Local tangent-plane offset on the WGS84 ellipsoid (cm over a few hundred metres)."""
-    meridional, normal = _radii_m(lat0)
-    return (lat0 + math.degrees(north_m / meridional),
-            lon0 + math.degrees(east_m / (normal * math.cos(math.radians(lat0)))))
-
-
-def to_north_east(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
-    meridional, normal = _radii_m(lat0)
-    return (math.radians(lat - lat0) * meridional,
-            math.radians(lon - lon0) * normal * math.cos(math.radians(lat0)))
-
-
 def read_boxes(path: Path) -> tuple[float, float, np.ndarray]:
     """``(lat0, lon0, boxes)`` from a colliders.csv: boxes (N, 6) centre north/east/up and half sizes."""
     first = path.read_text(encoding="utf-8").splitlines()[0]

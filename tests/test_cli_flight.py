@@ -10,7 +10,6 @@ a bug in ``frames`` cannot cancel itself out.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import signal
 import socket
@@ -29,11 +28,11 @@ from tests.exit_codes import (  # README's numbers, not the code's constants
     EXIT_NO_PATH,
     EXIT_OK,
 )
+from tests.geodesy import distance_m, ned_to_latlon
 
 pytestmark = pytest.mark.flight
 
 LAT0, LON0 = 37.792480, -122.397450  # colliders.csv's home
-WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
 ALT_M, SAFETY_M = 5.0, 5.0
 SPEEDUP = 20.0
 
@@ -44,30 +43,12 @@ GOAL_FAR = (420.5, 273.5)  # ~600 m
 START_AWAY = (20.0, 80.0)  # a street corner away from home, free at ground level
 
 
-def _radii_m(lat_deg: float) -> tuple[float, float]:
-    """WGS84 meridional and prime-vertical radii of curvature at ``lat_deg`` (m)."""
-    e2 = WGS84_F * (2 - WGS84_F)
-    w = 1 - e2 * math.sin(math.radians(lat_deg)) ** 2
-    return WGS84_A_M * (1 - e2) / w**1.5, WGS84_A_M / math.sqrt(w)
-
-
 def to_latlon(north_m: float, east_m: float, lat0: float = LAT0, lon0: float = LON0) -> tuple[float, float]:
     """Local tangent-plane offset on the WGS84 ellipsoid (within cm over 600 m), independent of ``frames``.
 
     (A sphere of radius 6378137 m would be 0.3 % short in latitude here: 1.3 m over 420 m.)
     """
-    meridional, normal = _radii_m(lat0)
-    lat = lat0 + math.degrees(north_m / meridional)
-    lon = lon0 + math.degrees(east_m / (normal * math.cos(math.radians(lat0))))
-    return lat, lon
-
-
-def distance_m(lat_a: float, lon_a: float, lat_b: float, lon_b: float) -> float:
-    """Horizontal distance (m) between two nearby points, same approximation as :func:`to_latlon`."""
-    meridional, normal = _radii_m(lat_a)
-    north = math.radians(lat_b - lat_a) * meridional
-    east = math.radians(lon_b - lon_a) * normal * math.cos(math.radians(lat_a))
-    return math.hypot(north, east)
+    return ned_to_latlon(north_m, east_m, lat0, lon0)
 
 
 def goal_args(north_m: float, east_m: float) -> list[str]:

@@ -26,9 +26,9 @@ from pymavlink.dialects.v20 import common as mavlink
 from skyroute.frames import Geodetic
 from skyroute.view import export
 from skyroute.view.export import ExportError, FlightRecord, write_export
+from tests.geodesy import distance_m, ned_to_latlon
 
 LAT0, LON0 = 37.792480, -122.397450
-WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
 
 #: A hand-made plan: start at home, north 100 m, then east 50 m while climbing to 8 m.
 WAYPOINTS = np.array([[0.0, 0.0, 5.0, 0.0], [100.0, 0.0, 5.0, 0.0], [100.0, 50.0, 8.0, 1.5708]])
@@ -38,18 +38,12 @@ TRACK = np.array([[0.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 5.0], [12.0, 100.0, 0.2,
 
 
 def to_latlon(north_m: float, east_m: float) -> tuple[float, float]:
-    """Local tangent-plane offset on the WGS84 ellipsoid (cm over a few hundred m), independent of ``frames``."""
-    e2 = WGS84_F * (2 - WGS84_F)
-    w = 1 - e2 * math.sin(math.radians(LAT0)) ** 2
-    meridional, normal = WGS84_A_M * (1 - e2) / w**1.5, WGS84_A_M / math.sqrt(w)
-    return (LAT0 + math.degrees(north_m / meridional),
-            LON0 + math.degrees(east_m / (normal * math.cos(math.radians(LAT0)))))
+    """``(lat, lon)`` of a point north/east of the map origin (:mod:`tests.geodesy`, independent of ``frames``)."""
+    return ned_to_latlon(north_m, east_m, LAT0, LON0)
 
 
 def close_m(lat_a: float, lon_a: float, lat_b: float, lon_b: float, tolerance_m: float = 0.05) -> bool:
-    north = math.radians(lat_b - lat_a) * 6.36e6
-    east = math.radians(lon_b - lon_a) * 6.36e6 * math.cos(math.radians(lat_a))
-    return math.hypot(north, east) <= tolerance_m
+    return distance_m(lat_a, lon_a, lat_b, lon_b) <= tolerance_m
 
 
 # (lat, lon, alt above home) expected for each mission item: takeoff over the start, the two waypoints after

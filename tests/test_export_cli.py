@@ -4,7 +4,6 @@ in-process sim, and bad input as one-line errors before any work."""
 from __future__ import annotations
 
 import json
-import math
 import socket
 import threading
 
@@ -12,25 +11,15 @@ import pytest
 
 import motion_planning as mp
 from sim import SimConfig, Simulator
+from tests.geodesy import distance_m, ned_to_latlon
 
 LAT0, LON0 = 37.792480, -122.397450
 GOAL_SHORT = (99.5, 50.5)  # ~120 m from home on the project map, free at 5 m with a 5 m margin
-WGS84_A_M, WGS84_F = 6378137.0, 1 / 298.257223563
 
 
 def to_latlon(north_m: float, east_m: float) -> tuple[float, float]:
-    """Local tangent-plane offset on the WGS84 ellipsoid, independent of ``skyroute.frames``."""
-    e2 = WGS84_F * (2 - WGS84_F)
-    w = 1 - e2 * math.sin(math.radians(LAT0)) ** 2
-    meridional, normal = WGS84_A_M * (1 - e2) / w**1.5, WGS84_A_M / math.sqrt(w)
-    return (LAT0 + math.degrees(north_m / meridional),
-            LON0 + math.degrees(east_m / (normal * math.cos(math.radians(LAT0)))))
-
-
-def distance_m(lat_a: float, lon_a: float, lat_b: float, lon_b: float) -> float:
-    north = math.radians(lat_b - lat_a) * 6.36e6
-    east = math.radians(lon_b - lon_a) * 6.36e6 * math.cos(math.radians(lat_a))
-    return math.hypot(north, east)
+    """``(lat, lon)`` of a point north/east of the map origin (:mod:`tests.geodesy`, independent of ``frames``)."""
+    return ned_to_latlon(north_m, east_m, LAT0, LON0)
 
 
 def goal_args(north_m: float, east_m: float) -> list[str]:

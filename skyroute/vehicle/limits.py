@@ -13,7 +13,7 @@ Measured on the SITL binaries in ../shared/sitl (ArduCopter V4.7.0-dev, PX4 v1.1
   settling back to 14 m. With FS_GCS_ENABLE = 0 (the default) it stays GUIDED and hovers there.
 - PX4 OFFBOARD holds the last position setpoint with its velocity feed-forward until COM_OF_LOSS_T (1 s), then
   takes COM_OBL_RC_ACT: 5 m/s ended 6-7 m past the last target. With the default (0, position mode) and no RC,
-  PX4 then descends at 0.6-0.9 m/s and lands where it is ("Landing detected", "Disarmed by landing").
+  PX4 then descends at 0.6-1.15 m/s (run to run) and lands where it is ("Landing detected", "Disarmed by landing").
 """
 
 from __future__ import annotations

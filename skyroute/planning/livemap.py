@@ -184,33 +184,34 @@ class LiveMap:
         nearest footprint point in the sector widened by ``bearing_error`` on each side (rad: how far the sector
         itself may be turned, e.g. a heading-relative sensor's heading lag)."""
         out = np.full(len(centres), np.inf)
-        if bearing_error > 0:  # widened sectors overlap: each is its own wedge
-            half_width = half_width + bearing_error
-            centres = centres + np.zeros(1)  # a copy, so the contiguous shortcut below is not taken for k > 1
-            if len(centres) > 1:
-                return np.array([self._predicted(p, window, centres[k:k + 1], half_width, range_m)[0]
-                                 for k in range(len(centres))])
         if self.footprint is None:
             return out
         i0, i1, j0, j1 = window
         cells = np.argwhere(self.footprint[i0:i1, j0:j1]) + (i0, j0)
         if len(cells) == 0:
             return out
+        half_width = half_width + bearing_error
         corner = cells + (self.north_offset, self.east_offset)
         near = np.clip(p, corner, corner + 1.0)
         dist = np.hypot(*(near - p).T)
         pts = corner[:, None, :] + _SAMPLES[None, :, :]  # (C, 5, 2)
         rel = pts - p
         bearing = np.arctan2(rel[..., 1], rel[..., 0]).ravel()
-        sector = self._sector_of(bearing, centres, half_width)
         d = np.repeat(dist, len(_SAMPLES))
-        ok = (sector >= 0) & (d <= range_m)
-        np.minimum.at(out, sector[ok], d[ok])
+        within = d <= range_m
+        bearing, d = bearing[within], d[within]
+        if bearing_error > 0:  # widened sectors overlap: a point counts in every sector it is in
+            inside = np.abs(_wrap(bearing[:, None] - centres[None, :])) <= half_width + 1e-12
+            if len(d):
+                out = np.where(inside, d[:, None], np.inf).min(axis=0)
+        else:
+            sector = self._sector_of(bearing, centres, half_width)
+            ok = sector >= 0
+            np.minimum.at(out, sector[ok], d[ok])
         # A building that only grazes a sector (its corner inside the wedge, no sample point of it there) meets
         # one of the sector's edges: the range along both edge rays bounds the sector's minimum from above.
-        for edge in (-half_width, half_width):
-            np.minimum(out, self._ray_ranges(p, window, centres + edge, range_m), out=out)
-        return out
+        edges = self._ray_ranges(p, window, np.concatenate([centres - half_width, centres + half_width]), range_m)
+        return np.minimum(out, np.minimum(edges[:len(centres)], edges[len(centres):]))
 
     def _ray_ranges(self, p: np.ndarray, window, bearings: np.ndarray, range_m: float) -> np.ndarray:
         """Distance along each bearing from ``p`` to the first footprint cell inside ``window`` (marched at a

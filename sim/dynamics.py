@@ -33,6 +33,13 @@ class Limits:
     yaw_gain_1_s: float = 2.0
     #: Linear drag coefficient (1/s) coupling the airframe to the wind.
     drag_1_s: float = 0.3
+    #: Horizontal acceleration the airframe's tilt can give at most (m/s^2): g tan(30 degrees), ArduCopter's
+    #: ANGLE_MAX default (PX4's MPC_TILTMAX_AIR is 45). The trajectory limit (``max_horizontal_accel_m_s2``,
+    #: WPNAV_ACCEL / MPC_ACC_HOR) shapes what the vehicle is asked to do; holding it against the wind's drag comes
+    #: on top, up to this.
+    max_tilt_accel_m_s2: float = 9.81 * math.tan(math.radians(30.0))
+    #: Time constant (s) of the velocity loop's integrator, which learns the wind's drag and leans into it.
+    wind_integrator_s: float = 1.0
 
 
 @dataclass
@@ -91,6 +98,7 @@ class PointMassQuad:
     def __init__(self, limits: Limits, position_neu, yaw_rad: float = 0.0) -> None:
         self.limits = limits
         self.state = QuadState(position_neu=np.array(position_neu, dtype=float), yaw_rad=yaw_rad)
+        self._lean_m_s2 = np.zeros(2)  # what the velocity loop's integrator has learnt to lean into the wind
 
     def desired_velocity(self, target: ControlTarget) -> np.ndarray:
         """Velocity command (m/s, map frame) from the target, before acceleration limits."""
@@ -174,6 +182,7 @@ class PointMassQuad:
             s.velocity_neu[:] = 0.0
             s.accel_neu[:] = 0.0
             s.yaw_rate_rad_s = 0.0
+            self._lean_m_s2[:] = 0.0
             return False
         v_des = self.desired_velocity(target)
         if s.on_ground:
@@ -189,7 +198,16 @@ class PointMassQuad:
             accel[:2] *= lim.max_horizontal_accel_m_s2 / ah
         accel[2] = min(max(accel[2], -lim.max_vertical_accel_m_s2), lim.max_vertical_accel_m_s2)
         if wind_neu is not None:
-            accel[:2] += lim.drag_1_s * (wind_neu[:2] - s.velocity_neu[:2])
+            # The velocity loop's integrator learns the drag (a first-order lag) and leans against it, on top of
+            # the shaped acceleration, within what the tilt allows: a steady wind leaves no steady offset, a gust
+            # pushes the vehicle until it is learnt, and a wind beyond the tilt's reach carries it off.
+            drag = lim.drag_1_s * (wind_neu[:2] - s.velocity_neu[:2])
+            self._lean_m_s2 += (drag - self._lean_m_s2) * min(1.0, dt_s / max(lim.wind_integrator_s, 1e-9))
+            thrust = accel[:2] - self._lean_m_s2
+            th = float(np.hypot(thrust[0], thrust[1]))
+            if th > lim.max_tilt_accel_m_s2:
+                thrust *= lim.max_tilt_accel_m_s2 / th
+            accel[:2] = thrust + drag
         s.accel_neu = accel
         s.velocity_neu = s.velocity_neu + accel * dt_s
         s.position_neu = s.position_neu + s.velocity_neu * dt_s

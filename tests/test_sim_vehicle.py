@@ -59,15 +59,14 @@ def test_rtl_returns_home_and_lands(sim_start, sim_connect):
 
 
 @pytest.mark.flight
-def test_wind_pushes_but_the_controller_holds(sim_start, sim_connect):
+def test_wind_pushes_but_the_controller_learns_it_and_holds(sim_start, sim_connect):
     sim = sim_start(speedup=20.0, wind_m_s=(0.0, 5.0))
     c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _takeoff_offboard(c, sim, altitude_m=5.0)
-    time.sleep(0.5)  # 10 s simulated hover
+    time.sleep(0.5)  # 10 s simulated hover: the velocity loop's integrator has learnt the drag
     pos = sim.truth()["position"]
-    # Steady state: drag 0.3/s * 5 m/s = 1.5 m/s^2 against gains 4/s * 1/s -> ~0.375 m downwind.
-    assert 0.2 < pos["east_m"] < 0.6 and abs(pos["north_m"]) < 0.05
+    assert abs(pos["east_m"]) < 0.1 and abs(pos["north_m"]) < 0.05
 
 
 def test_gps_noise_moves_reports_not_truth(sim_start, sim_connect):

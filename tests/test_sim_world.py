@@ -111,6 +111,32 @@ def test_dynamics_respects_limits_and_arrives():
     assert quad.state.on_ground and quad.state.position_neu[2] == 0.0
 
 
+def _fly_in_wind(lim: Limits, target: ControlTarget, wind, seconds: float) -> PointMassQuad:
+    quad = PointMassQuad(lim, [0.0, 0.0, 0.0])
+    quad.state.on_ground, quad.state.position_neu[2] = False, 10.0
+    for _ in range(int(seconds / 0.01)):
+        quad.step(0.01, target, True, lambda n, e, u: 0.0, np.array(wind, float))
+    return quad
+
+
+def test_the_controller_leans_into_a_wind_its_trajectory_limit_could_not_hold():
+    # ArduCopter's WPNAV_ACCEL 2.5 m/s^2 against the drag of an 8 m/s crosswind (0.3/s * 8 = 2.4 m/s^2) plus a
+    # 10 m/s leg into a 6 m/s headwind (0.3/s * 16 = 4.8 m/s^2): the integrator learns the drag, the tilt holds it
+    lim = Limits(max_horizontal_accel_m_s2=2.5)
+    hover = _fly_in_wind(lim, ControlTarget((0.0, 0.0, 10.0)), (0.0, 8.0, 0.0), 20.0)
+    assert np.hypot(*hover.state.position_neu[:2]) < 0.05  # no steady offset downwind
+    leg = ControlTarget((math.nan, math.nan, 10.0), (10.0, 0.0, math.nan))
+    upwind = _fly_in_wind(lim, leg, (-6.0, 0.0, 0.0), 20.0)
+    assert upwind.state.velocity_neu[0] == pytest.approx(10.0, abs=0.1)
+    assert np.hypot(*upwind.state.accel_neu[:2]) < 0.1
+
+
+def test_a_wind_beyond_the_tilts_reach_carries_the_vehicle_off():
+    lim = Limits()  # 30 degrees of tilt: 5.7 m/s^2; 25 m/s of wind drag 7.5 m/s^2 at a standstill
+    quad = _fly_in_wind(lim, ControlTarget((0.0, 0.0, 10.0)), (0.0, 25.0, 0.0), 10.0)
+    assert quad.state.position_neu[1] > 10.0
+
+
 def test_disarmed_vehicle_stays_put():
     quad = PointMassQuad(Limits(), [1.0, 2.0, 0.0])
     quad.step(0.02, ControlTarget((50.0, 0.0, 10.0)), False, lambda n, e, u: 0.0)

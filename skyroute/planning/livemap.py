@@ -146,20 +146,54 @@ class LiveMap:
     def clearance_m(self, north_m: float, east_m: float, direction_north: float, direction_east: float,
                     max_m: float, step_m: float = 0.25) -> float:
         """How far (m, up to ``max_m``) the ray from the map point along the unit direction stays out of the
-        observed obstacles' margin (the inflated layer; the map's own buildings are not looked at).
+        observed obstacles' margin (the inflated layer; the map's own buildings are not looked at). From a point
+        within a margin, the ray may leave it: then it is stopped by an obstacle cell, or by a margin it enters
+        again.
 
         >>> live = LiveMap(np.zeros((20, 20), bool), None, 0, 0, safety_m=2.0, confirm_hits=1)
         >>> _ = live.add_scan(2.5, 10.5, np.radians([0.0]), np.radians(1.0), np.array([10.0]), 30.0)
         >>> live.clearance_m(2.5, 10.5, 1.0, 0.0, 30.0), live.clearance_m(2.5, 10.5, 0.0, 1.0, 5.0)
         (7.5, 5.0)
+        >>> live.clearance_m(11.5, 10.5, -1.0, 0.0, 30.0), live.clearance_m(11.5, 10.5, 1.0, 0.0, 30.0)  # in the margin
+        (30.0, 0.5)
         """
+        steps = np.arange(0.0, max_m + 1e-9, step_m)
+        i = np.floor(north_m + direction_north * steps - self.north_offset).astype(np.int64)
+        j = np.floor(east_m + direction_east * steps - self.east_offset).astype(np.int64)
         n, m = self.shape
-        for s in np.arange(0.0, max_m + 1e-9, step_m):
-            i = int(math.floor(north_m + direction_north * s - self.north_offset))
-            j = int(math.floor(east_m + direction_east * s - self.east_offset))
-            if 0 <= i < n and 0 <= j < m and self.inflated[i, j]:
-                return float(s)
-        return float(max_m)
+        on = (i >= 0) & (i < n) & (j >= 0) & (j < m)
+        ii, jj = np.where(on, i, 0), np.where(on, j, 0)
+        near = on & self.inflated[ii, jj]
+        # A ray from within a margin (a vehicle that braked there) may fly out of it: the margin counts again once
+        # left, the obstacle itself at once (given no way out, a vehicle that stopped there could never move again)
+        outside = np.flatnonzero(~near)
+        near[: outside[0] if len(outside) else len(near)] = False
+        blocked = near | (on & self.hits[ii, jj])
+        return float(steps[int(np.argmax(blocked))]) if blocked.any() else float(max_m)
+
+    def seen_free_m(self, north_m: float, east_m: float, direction_north: float, direction_east: float,
+                    max_m: float, step_m: float = 0.5) -> float:
+        """How far (m, up to ``max_m``) the ray from the map point along the unit direction runs through cells the
+        sensor has seen free: up to the first sample in a cell never seen (or off the grid, or a hit). What lies
+        beyond is unknown, a new obstacle could stand there (the map's own buildings are never seen free).
+
+        >>> live = LiveMap(np.zeros((40, 40), bool), None, 0, 0, safety_m=2.0, confirm_hits=1)
+        >>> live.seen_free_m(5.5, 20.5, 1.0, 0.0, 30.0)
+        0.0
+        >>> _ = live.add_scan(5.5, 20.5, np.radians(np.arange(0, 360, 5.0)), np.radians(2.5), np.full(72, 20.0), 20.0)
+        >>> live.seen_free_m(5.5, 20.5, 1.0, 0.0, 30.0)  # free to 20 m less a cell's diagonal and half a metre
+        18.5
+        """
+        steps = np.arange(0.0, float(max_m) + 1e-9, step_m)
+        i = np.floor(north_m + direction_north * steps - self.north_offset).astype(np.int64)
+        j = np.floor(east_m + direction_east * steps - self.east_offset).astype(np.int64)
+        n, m = self.shape
+        on = (i >= 0) & (i < n) & (j >= 0) & (j < m)
+        ii, jj = np.where(on, i, 0), np.where(on, j, 0)
+        clear = on & self.known[ii, jj] & ~self.hits[ii, jj]
+        if clear.all():
+            return float(max_m)
+        return float(steps[int(np.argmin(clear))])
 
     # ------------------------------------------------------------------------------------------ scans
     def _window(self, north_m: float, east_m: float, reach_m: float) -> tuple[int, int, int, int]:

@@ -103,6 +103,12 @@ def test_attitude_heading_wraps_to_positive():
     assert t.roll_rad == pytest.approx(0.1)
 
 
+def test_attitude_carries_the_yaw_rate_and_the_samples_time():
+    msg = roundtrip(lambda e: e.attitude_encode(12_340, 0.0, 0.0, 0.5, 0, 0, -0.25))
+    t = vh.telemetry_from_attitude(vh.Telemetry(), msg, 0.0)
+    assert t.yaw_rate_rad_s == pytest.approx(-0.25) and t.attitude_time_s == pytest.approx(12.34)
+
+
 @pytest.mark.parametrize("raw, expected", [(1, vh.LandedState.ON_GROUND), (2, vh.LandedState.IN_AIR),
                                            (4, vh.LandedState.LANDING), (0, vh.LandedState.UNDEFINED),
                                            (200, vh.LandedState.UNDEFINED)])  # a value MAVLink does not define

@@ -129,3 +129,23 @@ def test_heading_relative_sectors_are_dropped_while_the_vehicle_yaws_fast_and_ke
     north = _obstacle_distance([1000] * 72)  # north-aligned scans never depend on the heading
     feed.handle(north, 1.9, math.radians(18.0))
     assert not feed.turning and len(feed.drain()) == 3
+
+
+def test_a_heading_relative_sector_is_turned_by_the_heading_at_its_own_time_with_a_small_allowance():
+    # nose at 90 degrees sampled at 1.0 s, yawing 20 deg/s; the sector read at 1.1 s looked 2 degrees further on
+    feed = SensorFeed()
+    sector = _wire(M.MAVLink_distance_sensor_message(1100, 20, 3000, 850, 0, 10, M.MAV_SENSOR_ROTATION_NONE, 0))
+    feed.handle(sector, 1.15, math.radians(90.0), heading_time_s=1.0, yaw_rate_rad_s=math.radians(20.0))
+    (scan,) = feed.drain()
+    assert math.degrees(scan.bearings_rad[0]) == pytest.approx(92.0)
+    assert math.degrees(scan.bearing_error_rad) == pytest.approx(3.0 + 20.0 * 0.2)  # not the blind 15 degrees
+    held = _wire(M.MAVLink_distance_sensor_message(2000, 20, 3000, 850, 0, 10, M.MAV_SENSOR_ROTATION_NONE, 0))
+    feed.handle(held, 2.05, math.radians(90.0), heading_time_s=2.0, yaw_rate_rad_s=0.0)
+    (steady,) = feed.drain()
+    assert math.degrees(steady.bearing_error_rad) == pytest.approx(3.0)
+    # without the heading's time (or a second apart: another clock) the latest heading stands, with 15 degrees
+    feed.handle(held, 2.1, math.radians(90.0))
+    feed.handle(held, 2.2, math.radians(90.0), heading_time_s=0.5, yaw_rate_rad_s=0.0)
+    for blind in feed.drain():
+        assert math.degrees(blind.bearings_rad[0]) == pytest.approx(90.0)
+        assert math.degrees(blind.bearing_error_rad) == pytest.approx(15.0)

@@ -517,7 +517,8 @@ class MavlinkLink:
                 t = self._telemetry
                 self.sensors.handle(msg, now, t.heading_rad, (t.north_m, t.east_m), t.down_m,
                                     local_time_s=t.local_time_s,
-                                    local_velocity_ned=(t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps))
+                                    local_velocity_ned=(t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps),
+                                    heading_time_s=t.attitude_time_s, yaw_rate_rad_s=t.yaw_rate_rad_s)
             elif mtype in TargetFeed.MESSAGES:
                 self.targets.handle(msg, now)
             else:

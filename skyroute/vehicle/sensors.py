@@ -41,9 +41,19 @@ _YAW_ORIENTATIONS = {getattr(mavlink, f"MAV_SENSOR_ROTATION_{name}"): deg for na
     ("YAW_270", 270), ("YAW_315", 315))}
 _NORTH_FRAMES = {mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_LOCAL_NED}
 _TWO_PI = 2.0 * math.pi
-#: How far a heading-relative sector's bearing may be off: ArduCopter yaws at up to ~90 deg/s and the heading comes
-#: with ATTITUDE at 10 Hz, so up to ~10 degrees, with room for the sensor's own sample time.
+#: How far a heading-relative sector's bearing may be off when all we know is the latest heading: ArduCopter yaws
+#: at up to ~90 deg/s and the heading comes with ATTITUDE at 10 Hz, so up to ~10 degrees, with room for the
+#: sensor's own sample time.
 HEADING_LAG_RAD = math.radians(15.0)
+#: Given the heading's own time and rate (ATTITUDE's time_boot_ms and yawspeed), the heading is carried on to the
+#: reading's time, and the allowance is this much plus the rate times :data:`HEADING_RATE_WINDOW_S` (a rate that
+#: changes within that window), never more than :data:`HEADING_LAG_RAD`. A 15 degree allowance on a 45 degree
+#: sector down a street widens the wedge over the street's buildings, whose nearer range then "explains" a wall
+#: standing in the street until it is ~10 m away.
+HEADING_BASE_ERROR_RAD, HEADING_RATE_WINDOW_S = math.radians(3.0), 0.2
+#: Carry the heading on over at most this long (s); a reading further from the heading's time keeps
+#: :data:`HEADING_LAG_RAD`.
+HEADING_MAX_CARRY_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -147,6 +157,33 @@ def reading_from_distance_sensor(msg, received_s: float, heading_rad: float) -> 
                      bearing_error_rad=HEADING_LAG_RAD)
 
 
+def heading_allowance_rad(yaw_rate_rad_s: float) -> float:
+    """How far a heading carried on at ``yaw_rate_rad_s`` to a reading's time may still be off (rad).
+
+    >>> [round(math.degrees(heading_allowance_rad(math.radians(rate))), 1) for rate in (0.0, 30.0, 90.0)]
+    [3.0, 9.0, 15.0]
+    """
+    rate = abs(float(yaw_rate_rad_s)) if math.isfinite(yaw_rate_rad_s) else math.inf
+    return min(HEADING_BASE_ERROR_RAD + rate * HEADING_RATE_WINDOW_S, HEADING_LAG_RAD)
+
+
+def carry_heading(scan: RangeScan, heading_time_s: float, yaw_rate_rad_s: float) -> RangeScan:
+    """A heading-relative ``scan`` (turned by a heading sampled at ``heading_time_s``, turning at
+    ``yaw_rate_rad_s``) turned on by the yaw between then and its own ``time_s``, with the smaller allowance of
+    :func:`heading_allowance_rad`; unchanged when the times or the rate are unknown or too far apart.
+
+    >>> s = RangeScan(np.array([math.radians(90.0)]), math.radians(22.5), np.array([20.0]), 0.2, 30.0, 10.1, 0.0, "")
+    >>> c = carry_heading(s, 10.0, math.radians(20.0))   # the heading is 0.1 s older, turning at 20 deg/s
+    >>> round(math.degrees(c.bearings_rad[0]), 1), round(math.degrees(c.bearing_error_rad), 1)
+    (92.0, 7.0)
+    """
+    dt = float(scan.time_s) - float(heading_time_s)
+    if not (math.isfinite(dt) and abs(dt) <= HEADING_MAX_CARRY_S and math.isfinite(yaw_rate_rad_s)):
+        return scan
+    bearings = (np.asarray(scan.bearings_rad, float) + float(yaw_rate_rad_s) * dt) % _TWO_PI
+    return dataclasses.replace(scan, bearings_rad=bearings, bearing_error_rad=heading_allowance_rad(yaw_rate_rad_s))
+
+
 def translate_sensor(msg, received_s: float, heading_rad: float) -> RangeScan | HeightReading | None:
     """Any sensor message -> its reading (None for messages that are not, or cannot be placed)."""
     kind = msg.get_type()
@@ -208,14 +245,18 @@ class SensorFeed:
 
     def handle(self, msg, received_s: float, heading_rad: float,
                local_ne: tuple[float, float] | None = None, local_down_m: float | None = None, *,
-               local_time_s: float = math.nan, local_velocity_ned: tuple[float, float, float] | None = None) -> bool:
+               local_time_s: float = math.nan, local_velocity_ned: tuple[float, float, float] | None = None,
+               heading_time_s: float = math.nan, yaw_rate_rad_s: float = math.nan) -> bool:
         """Translate and queue ``msg`` if it is a sensor message; True if it was one.
 
         ``local_ne``, ``local_down_m``: the vehicle's latest local position (m), sampled at ``local_time_s`` (the
         autopilot's seconds since boot) and moving at ``local_velocity_ned`` (m/s). A horizontal scan is stamped
         with where the vehicle was at the scan's own time: that position moved on by the velocity for the
         difference, up to :attr:`MAX_EXTRAPOLATION_S` (the two messages are not sampled together: 0.3 s apart at
-        10 m/s is 3 m, and a building's face read from 3 m back looks like a new obstacle in front of it)."""
+        10 m/s is 3 m, and a building's face read from 3 m back looks like a new obstacle in front of it).
+        ``heading_time_s``, ``yaw_rate_rad_s``: when the heading was sampled (the autopilot's seconds since boot)
+        and its rate: a heading-relative scan is turned by the heading at its own time and given the allowance
+        of :func:`heading_allowance_rad` instead of :data:`HEADING_LAG_RAD`."""
         if msg.get_type() not in self.MESSAGES:
             return False
         reading = translate_sensor(msg, received_s, heading_rad)
@@ -225,6 +266,8 @@ class SensorFeed:
         if isinstance(reading, RangeScan) and reading.bearing_error_rad > 0 and self.turning:
             self.turning_dropped += 1  # a heading-relative sector while the heading swings: not placed at all
             return True
+        if isinstance(reading, RangeScan) and reading.bearing_error_rad > 0:
+            reading = carry_heading(reading, heading_time_s, yaw_rate_rad_s)
         if isinstance(reading, RangeScan) and local_ne is not None and all(map(math.isfinite, local_ne)):
             n, e = float(local_ne[0]), float(local_ne[1])
             down = float(local_down_m) if local_down_m is not None and math.isfinite(local_down_m) else None

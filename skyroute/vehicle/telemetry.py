@@ -69,7 +69,8 @@ class Telemetry:
     Global: ``lat_deg``, ``lon_deg``, ``alt_amsl_m``, ``relative_alt_m`` (above home), NED ground velocity
     ``v*_mps``. Local (autopilot's EKF frame, NED): ``north_m``, ``east_m``, ``down_m``, ``local_v*_mps``.
     ``*_time_s`` are the autopilot's time since boot of that sample, ``*_rx_s`` our monotonic receive time.
-    ``heading_rad`` is yaw from north, clockwise. ``gps_fix_type`` is GPS_RAW_INT's GPS_FIX_TYPE (-1: never
+    ``heading_rad`` is yaw from north, clockwise, ``yaw_rate_rad_s`` its rate (clockwise positive) at
+    ``attitude_time_s``. ``gps_fix_type`` is GPS_RAW_INT's GPS_FIX_TYPE (-1: never
     reported), ``origin`` the EKF origin (GPS_GLOBAL_ORIGIN, AMSL), ``home`` HOME_POSITION (AMSL).
     """
 
@@ -98,6 +99,8 @@ class Telemetry:
     roll_rad: float = _NAN
     pitch_rad: float = _NAN
     heading_rad: float = _NAN
+    yaw_rate_rad_s: float = _NAN
+    attitude_time_s: float = _NAN
     landed_state: LandedState = LandedState.UNDEFINED
     landed_rx_s: float = _NAN
     battery_voltage_v: float = _NAN
@@ -209,9 +212,10 @@ def telemetry_from_local_position_ned(t: Telemetry, msg, now_s: float) -> Teleme
 
 
 def telemetry_from_attitude(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """Roll, pitch, and yaw as ``heading_rad`` in [0, 2 pi)."""
+    """Roll, pitch, and yaw as ``heading_rad`` in [0, 2 pi); the yaw rate and the sample's time since boot."""
     return dataclasses.replace(
-        t, roll_rad=float(msg.roll), pitch_rad=float(msg.pitch), heading_rad=float(msg.yaw) % (2 * math.pi)
+        t, roll_rad=float(msg.roll), pitch_rad=float(msg.pitch), heading_rad=float(msg.yaw) % (2 * math.pi),
+        yaw_rate_rad_s=float(msg.yawspeed), attitude_time_s=msg.time_boot_ms * 1e-3,
     )
 
 

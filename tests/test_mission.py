@@ -291,6 +291,21 @@ def test_steer_leads_by_the_round_trip():
     assert np.linalg.norm(near.velocity) == pytest.approx(8.0 + 3.0 * 0.2)  # speeding up at 3 m/s^2
 
 
+def test_steer_under_a_speed_cap_below_the_schedule_commands_the_cap_and_no_lead():
+    # the same vehicle at 8 m/s; the mission may fly 5 m/s here (what its sensor has seen free ahead)
+    path = fp.smooth_path(np.array([[0.0, 0.0, 10.0], [100.0, 0.0, 10.0]]), cruise_mps=10.0, accel_mps2=3.0)
+    kwargs = dict(s_m=20.0, ref_s_m=0.0, position=(20.0, 0.0, 10.0), velocity=(8.0, 0.0, 0.0), accel_mps2=3.0,
+                  velocity_lag_s=0.0, heading_rad=0.0, ahead_s=0.6)
+    capped = fw.steer(path, speed_cap_mps=5.0, **kwargs)
+    assert np.linalg.norm(capped.velocity) == pytest.approx(2.0)  # 3 m/s over the cap: told 3 m/s under it
+    assert capped.position[0] == pytest.approx(20.0)  # a target ahead would pull it on at its own speed
+    slower = fw.steer(path, speed_cap_mps=5.0, **{**kwargs, "velocity": (4.0, 0.0, 0.0)})
+    assert np.linalg.norm(slower.velocity) == pytest.approx(5.0)  # under the cap: speeding up to it, no more
+    loose = fw.steer(path, speed_cap_mps=12.0, **kwargs)  # above the schedule: as without a cap
+    assert loose.position[0] == pytest.approx(fw.steer(path, **kwargs).position[0]) == pytest.approx(24.8)
+    assert np.linalg.norm(fw.steer(path, speed_cap_mps=0.0, **kwargs).velocity) == 0.0
+
+
 class CoastLimits:
     """ArduCopter-like: 3 s of coasting on the last velocity, then braking at 2.5 m/s^2."""
 

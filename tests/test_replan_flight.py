@@ -9,6 +9,7 @@ frame (its report's ``landed`` north/east), so no client frame conversion is tru
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -109,6 +110,31 @@ def test_a_wall_across_the_route_is_sensed_and_flown_round_to_the_goal(start_sim
     assert plot.stat().st_size > 0
     print(f"\n{autopilot}: landed {_landed_from_goal_m(report, GOAL_NEAR):.2f} m from the goal, clearance "
           f"{report['min_clearance_m']:.2f} m, airborne {report['airborne_time_s']:.1f} s, {len(added)} wall(s)")
+
+
+def test_ardupilot_sectors_see_a_wall_behind_a_streets_buildings_in_time_to_stop(start_sim, tmp_path, capsys,
+                                                                                 watchdog):
+    """ArduPilot's 45 degree sectors down a street read its buildings first: a wall 49 m from the start, across the
+    README demo's first street, is the nearest thing in the forward sector only from ~20 m (at 10 m/s the
+    vehicle needs ~25 m to stop). The client flies no faster than it can stop within what it has seen free,
+    so it turns off short of the wall (it flew into it at cruise speed before)."""
+    watchdog(90.0)
+    route_goal = (-300.5, 350.5)  # the README demo's goal; its changed city's walls (seed 11), the first of them
+    change = walls_across_route(_stale().obstacles, (0.0, 0.0), route_goal, altitude_m=ALT_M, safety_m=SAFETY_M,
+                                count=3, seed=11)
+    added = change.obstacles[len(_stale().obstacles):]
+    first = added[np.argmin(np.hypot(added[:, 0], added[:, 1]))]
+    assert 40.0 < math.hypot(first[0], first[1]) < 60.0
+    truth = _truth(tmp_path, np.vstack([_stale().obstacles, first]))
+    sim = start_sim(truth, autopilot="ardupilot")
+    goal = (-25.5, 136.5)  # a corner of that route, beyond the wall
+    code = _fly(sim, tmp_path, goal=goal)
+    report = sim.stop()
+    out, err = capsys.readouterr()
+    assert code == mp.EXIT_OK, err
+    _assert_safe_and_down(report)
+    assert _landed_from_goal_m(report, goal) <= 1.0
+    assert "REPLANNED" in _navlog(tmp_path)
 
 
 def test_without_replanning_the_client_flies_into_the_wall(start_sim, tmp_path, capsys, watchdog):

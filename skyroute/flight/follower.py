@@ -70,7 +70,7 @@ def feedforward_cap_mps(limits: Limits | None, clearance_fn: ClearanceFn | None,
 def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, ahead_s: float,
           accel_mps2: float, velocity_lag_s: float, heading_rad: float, limits: Limits | None = None,
           clearance_fn: ClearanceFn | None = None, previous_mps: float = 0.0, dt_s: float = 0.0,
-          max_lead_mps: float = 2.0, brake_lag_s: float = 0.0) -> Setpoint:
+          max_lead_mps: float = 2.0, brake_lag_s: float = 0.0, speed_cap_mps: float = math.inf) -> Setpoint:
     """The setpoint for a vehicle at ``position`` (map n, e, alt) moving at ``velocity`` (map n, e, up) that has
     reached arc length ``s_m``; ``ref_s_m`` is the previous setpoint's (setpoints never go back along the path).
 
@@ -80,12 +80,19 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
     ``accel_mps2`` adds over the prediction, so the autopilot keeps acceleration to spare for the cross-track
     error (e.g. leaving an arc) and a blocked vehicle is not given a runaway command.
 
+    ``speed_cap_mps`` caps the feed-forward (the mission's sensing limit,
+    :meth:`~.replanning.ReplanningMixin._sight_cap_mps`; a vehicle over it is told as much under it); where it is
+    below the schedule the target has no lead.
+
     The feed-forward's direction is the path's ``velocity_lag_s`` ahead (the autopilot's velocity loop takes
     about that long to turn); its speed is the schedule's ``max(velocity_lag_s, brake_lag_s)`` ahead, so an
     autopilot that is slow to slow down (PX4, ~0.6 s) is told to brake that much earlier without turning early.
     """
     speed = float(np.linalg.norm(velocity))
-    predicted = np.asarray(position, float) + np.asarray(velocity, float) * ahead_s
+    capped = speed_cap_mps < path.speed_at(s_m)  # the cap, not the schedule, sets the speed here
+    # A capped vehicle gets no lead: a target ahead of it is what its position loop chases, on top of the
+    # feed-forward, and would keep a vehicle that must slow down at its speed
+    predicted = np.asarray(position, float) + (0.0 if capped else np.asarray(velocity, float) * ahead_s)
     ref_s = path.project(predicted, max(s_m, ref_s_m))
     remaining_m = path.length_m - s_m
     if remaining_m <= FINAL_APPROACH_M or speed**2 / (2 * accel_mps2) > 2.0 * remaining_m + FINAL_APPROACH_M:
@@ -99,7 +106,9 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
     if ref_s >= path.length_m:
         return Setpoint(target, None, heading_rad, ref_s)
     ramp = max(previous_mps + accel_mps2 * dt_s, speed + accel_mps2 * max(ahead_s, 0.1))
+    # over the cap, as far under it: an autopilot that lags its command gets back under the cap sooner
+    cap = max(min(speed_cap_mps, 2.0 * speed_cap_mps - speed), 0.0)
     wanted = min(path.speed_at(ff_s), path.speed_at(brake_s), ramp,
-                 speed + accel_mps2 * max(ahead_s, 0.1) + max_lead_mps)
+                 speed + accel_mps2 * max(ahead_s, 0.1) + max_lead_mps, cap)
     wanted = feedforward_cap_mps(limits, clearance_fn, target, tangent, wanted)
     return Setpoint(target, tangent * wanted, heading_rad, ref_s)

@@ -611,7 +611,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                                 p.altitude_m), velocity=velocity, ahead_s=ahead_s, accel_mps2=s.accel_mps2,
                                 velocity_lag_s=self.velocity_lag_s, brake_lag_s=self.brake_lag_s,
                                 heading_rad=heading, limits=self.limits,
-                                clearance_fn=self.clearance_fn, previous_mps=ff_mps, dt_s=rate * (now - ff_at))
+                                clearance_fn=self.clearance_fn, previous_mps=ff_mps, dt_s=rate * (now - ff_at),
+                                speed_cap_mps=self._sight_cap_mps(p, path.point_at(self._progress_s)[1]))
             ref_s, heading = sp.ref_s, sp.heading_rad
             ff_mps, ff_at = (0.0 if sp.velocity is None else float(np.linalg.norm(sp.velocity))), now
             position = sp.position

@@ -29,6 +29,9 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
+#: PX4's velocity response (s, measured on SITL braking from 9 m/s): the braking rule was measured with it.
+PX4_RESPONSE_S = 0.6
+
 
 class Blockage(Protocol):
     """Where the remaining path meets an observed obstacle: ``reason`` "blocked" or "margin", ``along_m`` along
@@ -102,6 +105,18 @@ def braking_distance_m(speed_mps: float, decel_mps2: float, reaction_s: float = 
     """
     v = max(float(speed_mps), 0.0)
     return v * reaction_s + v * v / (2.0 * max(float(decel_mps2), 1e-6))
+
+
+def speed_to_stop_within_mps(room_m: float, decel_mps2: float, reaction_s: float = 0.3) -> float:
+    """The fastest speed (m/s) whose :func:`braking_distance_m` fits in ``room_m`` (0 when there is no room).
+
+    >>> round(speed_to_stop_within_mps(19.67, 3.0), 2), speed_to_stop_within_mps(-1.0, 3.0)
+    (10.0, 0.0)
+    """
+    if not room_m > 0:
+        return 0.0
+    a, r = max(float(decel_mps2), 1e-6), max(float(reaction_s), 0.0)
+    return a * (-r + math.sqrt(r * r + 2.0 * float(room_m) / a))
 
 
 def can_turn_in_time(blockage: Blockage | None, speed_mps: float, decel_mps2: float, safety_m: float,
@@ -305,6 +320,27 @@ class ReplanningMixin:
         if blockage is not None:
             raise _Blocked(blockage)
 
+    def _sight_cap_mps(self, p, direction_ne) -> float:
+        """Never outrun the sensor: while it streams, the fastest speed (m/s) along ``direction_ne`` (the path's,
+        map north and east) from which the vehicle at map position ``p`` can stop, half a margin to spare, within
+        the space seen free straight ahead (``seen_free_m`` of the obstacle map); ``inf`` when nothing limits it.
+        A new obstacle can only stand where the sensor has not looked, and a wide sector (ArduPilot's 45 degrees)
+        down a street reads the buildings beside it first: what stands behind them in that sector shows only once
+        it is the nearest thing there.
+
+        The braking is :func:`braking_distance_m`'s, as for a replan's, with the autopilot's response beyond
+        PX4's 0.6 s (``brake_lag_s``; ArduCopter's ~1 s) added to its reaction time: that rule was measured on
+        PX4 (braked replans keep more than the margin), and a vehicle slower to slow down needs that much more."""
+        seen_fn = getattr(self.sensing.obstacles, "seen_free_m", None)
+        horizontal = math.hypot(float(direction_ne[0]), float(direction_ne[1]))
+        if seen_fn is None or not self.sensing.active or horizontal < 1e-6:
+            return math.inf
+        decel, spare = self.speeds.accel_mps2, 0.5 * self.replan_margin_m
+        reaction = 0.3 + max(0.0, float(self.brake_lag_s) - PX4_RESPONSE_S)
+        need = braking_distance_m(self.speeds.cruise_mps * 1.5, decel, reaction) + spare
+        seen = float(seen_fn(p.north_m, p.east_m, direction_ne[0] / horizontal, direction_ne[1] / horizontal, need))
+        return math.inf if seen >= need else speed_to_stop_within_mps(seen - spare, decel, reaction)
+
     def _replan_in_flight(self, blockage: Blockage) -> np.ndarray:
         """PATH_BLOCKED -> REPLANNING -> WAYPOINT: brake first if the vehicle cannot stop short of the obstacle,
         then a new route from where it is (to the goal, or to the fallback point once the goal is out of reach)."""
@@ -476,3 +512,4 @@ def _abort(why: str) -> Exception:
     from .recovery import _Abort
 
     return _Abort(why)
+

@@ -205,6 +205,12 @@ class Replanner:
         obstacle's margin, up to ``max_m`` (m); the map's own buildings are the map's clearance function's."""
         return self.live.clearance_m(north_m, east_m, direction_north, direction_east, max_m)
 
+    def seen_free_m(self, north_m: float, east_m: float, direction_north: float, direction_east: float,
+                    max_m: float) -> float:
+        """How far the horizontal ray from the point along the unit direction runs through space the sensor has
+        seen free, up to ``max_m`` (m): beyond it a new obstacle could stand unseen (:meth:`LiveMap.seen_free_m`)."""
+        return self.live.seen_free_m(north_m, east_m, direction_north, direction_east, max_m)
+
     # ---------------------------------------------------------------------------------------- replanning
     def _grid_planner(self) -> GridPlanner:
         if self._planner is None or self._planner_version != self.live.version:

@@ -512,4 +512,3 @@ def _abort(why: str) -> Exception:
     from .recovery import _Abort
 
     return _Abort(why)
-

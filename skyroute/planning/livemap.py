@@ -143,6 +143,17 @@ class LiveMap:
         out[:, 3] = out[:, 4] = 0.5
         return out
 
+    def _ray(self, north_m: float, east_m: float, direction_north: float, direction_east: float, max_m: float,
+             step_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Samples every ``step_m`` along a ray, up to ``max_m``: ``(steps, on, i, j)``, the distances, whether each
+        sample is on the grid, and its cell (``(0, 0)`` where off the grid)."""
+        steps = np.arange(0.0, float(max_m) + 1e-9, step_m)
+        i = np.floor(north_m + direction_north * steps - self.north_offset).astype(np.int64)
+        j = np.floor(east_m + direction_east * steps - self.east_offset).astype(np.int64)
+        n, m = self.shape
+        on = (i >= 0) & (i < n) & (j >= 0) & (j < m)
+        return steps, on, np.where(on, i, 0), np.where(on, j, 0)
+
     def clearance_m(self, north_m: float, east_m: float, direction_north: float, direction_east: float,
                     max_m: float, step_m: float = 0.25) -> float:
         """How far (m, up to ``max_m``) the ray from the map point along the unit direction stays out of the
@@ -157,12 +168,7 @@ class LiveMap:
         >>> live.clearance_m(11.5, 10.5, -1.0, 0.0, 30.0), live.clearance_m(11.5, 10.5, 1.0, 0.0, 30.0)  # in the margin
         (30.0, 0.5)
         """
-        steps = np.arange(0.0, max_m + 1e-9, step_m)
-        i = np.floor(north_m + direction_north * steps - self.north_offset).astype(np.int64)
-        j = np.floor(east_m + direction_east * steps - self.east_offset).astype(np.int64)
-        n, m = self.shape
-        on = (i >= 0) & (i < n) & (j >= 0) & (j < m)
-        ii, jj = np.where(on, i, 0), np.where(on, j, 0)
+        steps, on, ii, jj = self._ray(north_m, east_m, direction_north, direction_east, max_m, step_m)
         near = on & self.inflated[ii, jj]
         # A ray from within a margin (a vehicle that braked there) may fly out of it: the margin counts again once
         # left, the obstacle itself at once (given no way out, a vehicle that stopped there could never move again)
@@ -184,12 +190,7 @@ class LiveMap:
         >>> live.seen_free_m(5.5, 20.5, 1.0, 0.0, 30.0)  # free to 20 m less a cell's diagonal and half a metre
         18.5
         """
-        steps = np.arange(0.0, float(max_m) + 1e-9, step_m)
-        i = np.floor(north_m + direction_north * steps - self.north_offset).astype(np.int64)
-        j = np.floor(east_m + direction_east * steps - self.east_offset).astype(np.int64)
-        n, m = self.shape
-        on = (i >= 0) & (i < n) & (j >= 0) & (j < m)
-        ii, jj = np.where(on, i, 0), np.where(on, j, 0)
+        steps, on, ii, jj = self._ray(north_m, east_m, direction_north, direction_east, max_m, step_m)
         clear = on & self.known[ii, jj] & ~self.hits[ii, jj]
         if clear.all():
             return float(max_m)

@@ -70,8 +70,8 @@ class Telemetry:
     ``v*_mps``. Local (autopilot's EKF frame, NED): ``north_m``, ``east_m``, ``down_m``, ``local_v*_mps``.
     ``*_time_s`` are the autopilot's time since boot of that sample, ``*_rx_s`` our monotonic receive time.
     ``heading_rad`` is yaw from north, clockwise, ``yaw_rate_rad_s`` its rate (clockwise positive) at
-    ``attitude_time_s``. ``gps_fix_type`` is GPS_RAW_INT's GPS_FIX_TYPE (-1: never
-    reported), ``origin`` the EKF origin (GPS_GLOBAL_ORIGIN, AMSL), ``home`` HOME_POSITION (AMSL).
+    ``attitude_time_s``. ``gps_fix_type`` is GPS_RAW_INT's GPS_FIX_TYPE (-1: never reported), ``origin`` the EKF
+    origin (GPS_GLOBAL_ORIGIN, AMSL), ``home`` HOME_POSITION (AMSL).
     """
 
     autopilot: Autopilot = Autopilot.GENERIC

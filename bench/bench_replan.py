@@ -87,8 +87,9 @@ def fly(stale: np.ndarray, truth: np.ndarray, lat0: float, lon0: float, start, g
     gm = GridMap.build(stale, ALT_M, SAFETY_M)
     footprint = create_grid(stale, ALT_M, 0.0)[0]
     live = LiveMap.for_grid_map(gm, footprint)
-    replanner = Replanner(live, goal, ALT_M, **({} if prior else {"suspect_weight": 1.0}))
+    replanner = Replanner(live, goal, ALT_M, **({} if prior else {"suspect_weight": 1.0, "route_weight": 1.0}))
     waypoints = gm.plan(start, goal).waypoints
+    replanner.suspect_route(waypoints)  # as the client does with its first plan
     sensor = ObstacleSensor(SensorConfig(), TrueCity(lat0, lon0, truth), personality, seed=0)
     encoder = mavlink.MAVLink(io.BytesIO(), 1, 1)
     decoder = mavlink.MAVLink(io.BytesIO(), 255, 191)

@@ -278,12 +278,41 @@ def test_the_prior_keeps_the_short_way_when_it_is_off_seen_or_there_is_nothing_o
     assert on.refine(start, on.replan(start).waypoints) is None
 
 
+#: A street north (east -6..7) between two blocks (north -40..60), open ground round them (posts fix a 200 m
+#: extent); in the truth a 20 m wall stands across the street's southern approach, 25 m ahead of the start.
+STREET = np.vstack([ISLAND[1:], [[10.0, -23.0, 15.0, 50.0, 17.0, 15.0], [10.0, 19.5, 15.0, 50.0, 12.5, 15.0]]])
+WALL_BEFORE_THE_STREET = np.vstack([STREET, [[-50.0, 0.0, 15.0, 0.5, 10.0, 15.0]]])
+
+
+def test_the_prior_keeps_a_detour_off_the_rest_of_the_maps_route_once_the_map_proved_wrong_on_it():
+    start, goal = (-75.5, 0.5), (80.5, 0.5)
+    live, gm = _live(STREET, confirm_hits=1)
+    replanner = Replanner(live, goal, ALT, suspect_weight=1.0, route_weight=3.0, route_radius_m=20.0)
+    replanner.suspect_route(gm.plan(start, goal).waypoints)  # up the street
+    bearings, half, d = _scan(WALL_BEFORE_THE_STREET, start, 72)
+    live.add_scan(*start, bearings, half, d, 30.0)
+    assert live.hits.any()
+    fast = replanner.replan(start)
+    assert np.abs(fast.waypoints[:, 1]).max() < 20.0  # round the wall's end and back into the map's street
+    better = replanner.refine(start, fast.waypoints)
+    assert better is not None and better.waypoints[:, 1].max() > 32.0  # round the east block instead
+    assert replanner.prior_cost(better.waypoints) < replanner.prior_cost(fast.waypoints)
+    cells = [live.cell_of(*p) for p in better.waypoints[:, :2]]
+    assert all(line_of_sight(live.grid, a, b) for a, b in zip(cells[:-1], cells[1:]))  # as free as a replan's
+    # Without the map's route named, or with that half off, nothing argues against the short way.
+    unnamed = Replanner(live, goal, ALT, suspect_weight=1.0, route_weight=3.0)
+    off = Replanner(live, goal, ALT, suspect_weight=1.0, route_weight=1.0)
+    off.suspect_route(gm.plan(start, goal).waypoints)
+    for plain in (unnamed, off):
+        assert plain.suspect_weights() is None and plain.refine(start, plain.replan(start).waypoints) is None
+
+
 def test_the_prior_rejects_weights_below_one_and_negative_radii():
     live, _ = _live(ISLAND)
-    with pytest.raises(ValueError, match="suspect"):
-        Replanner(live, (50.5, 0.5), ALT, suspect_weight=0.5)
-    with pytest.raises(ValueError, match="suspect"):
-        Replanner(live, (50.5, 0.5), ALT, suspect_radius_m=-1.0)
+    for bad in ({"suspect_weight": 0.5}, {"suspect_radius_m": -1.0}, {"route_weight": 0.5},
+                {"route_radius_m": -1.0}):
+        with pytest.raises(ValueError, match="prior's weight must be >= 1 and its radius >= 0"):
+            Replanner(live, (50.5, 0.5), ALT, **bad)
 
 
 def test_a_wall_seen_obliquely_is_placed_on_its_face_not_in_front_of_it():

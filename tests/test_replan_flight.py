@@ -20,6 +20,7 @@ from sim import write_colliders
 from sim.sensors import SensorConfig
 from skyroute.cityedit import enclose_goal, walls_across_route
 from skyroute.maps import read_colliders
+from skyroute.planning.replan import Replanner
 
 from . import test_cli_flight
 from .test_cli_flight import distance_m, goal_args, to_latlon
@@ -92,11 +93,15 @@ def _navlog(tmp_path: Path) -> str:
     pytest.param("ardupilot", SensorConfig(), id="ardupilot-distance-sensor-sectors"),
 ])
 def test_a_wall_across_the_route_is_sensed_and_flown_round_to_the_goal(start_sim, tmp_path, capsys, watchdog,
-                                                                        autopilot, sensor):
+                                                                        autopilot, sensor, monkeypatch):
     watchdog(90.0)
     truth, added = _walls(tmp_path, count=1, seed=3)
     sim = start_sim(truth, autopilot=autopilot, sensor=sensor)
     plot = tmp_path / "flight.png"
+    named = []  # the routes the client names to its stale-map prior as the map's own
+    suspect_route = Replanner.suspect_route
+    monkeypatch.setattr(Replanner, "suspect_route",
+                        lambda self, route: (named.append(np.asarray(route)), suspect_route(self, route))[1])
     code = _fly(sim, tmp_path, "--plot", str(plot))
     report = sim.stop()
     out, err = capsys.readouterr()
@@ -108,6 +113,8 @@ def test_a_wall_across_the_route_is_sensed_and_flown_round_to_the_goal(start_sim
     assert "observed obstacle cells within" in log  # the flight's sensing summary names where they were
     assert "replans" in [line for line in out.splitlines() if line.startswith("mission complete:")][0]
     assert plot.stat().st_size > 0
+    assert len(named) == 1  # the first plan's, from home to the goal (replans are the live layer's, not the map's)
+    assert np.hypot(*named[0][0, :2]) < 5.0 and np.hypot(*(named[0][-1, :2] - GOAL_NEAR)) < 1.0
     print(f"\n{autopilot}: landed {_landed_from_goal_m(report, GOAL_NEAR):.2f} m from the goal, clearance "
           f"{report['min_clearance_m']:.2f} m, airborne {report['airborne_time_s']:.1f} s, {len(added)} wall(s)")
 

@@ -125,6 +125,8 @@ def fly(
             raise PlanRefused(exc) from None
         log.info(plan_summary(plan))
         plans.append(plan)
+        if obstacles is not None:  # the map's route: where the map, once wrong, is likeliest to be wrong again
+            obstacles.suspect_route(plan.waypoints)
         return plan.waypoints
 
     geometry = Clearance(setting.city.obstacles, setting.safety_m)

@@ -12,8 +12,10 @@ from its own structure, a new one from the grid search, which is optimal on the 
 obstacles count as reaching above the altitude (their tops were never seen), so a replan never climbs over them.
 
 :meth:`Replanner.refine` then picks again among the detours under a stale-map prior: unseen cells near observed
-obstacles cost more (a wall seen in part likely continues; a street blocked once is often blocked again), searched
-with per-cell costs; slower, so the mission runs it off its loop (:meth:`Replanner.refine_job`).
+obstacles cost more (a wall seen in part likely continues; a street blocked once is often blocked again), and so do
+unseen cells near the route the map chose (:meth:`Replanner.suspect_route`: once the map proved wrong on its own
+route, the rest of that route is the likeliest place for it to be wrong again), searched with per-cell costs;
+slower, so the mission runs it off its loop (:meth:`Replanner.refine_job`).
 
 When the goal cannot be reached any more, :meth:`Replanner.fallback` finds the nearest safe point that can:
 free on the live grid (and landable, if a landing grid is given), in the vehicle's connected free space.
@@ -43,7 +45,10 @@ METHODS = ("grid", "any-angle")
 #: The stale-map prior (:meth:`Replanner.refine`): unseen cells this close to an observed obstacle (m) cost this
 #: many times their length. Chosen on the offline model of the held-out check (bench/bench_replan.py --compare-prior).
 SUSPECT_WEIGHT, SUSPECT_RADIUS_M = 3.0, 100.0
-#: Coarse cell (m) of the distance to the nearest observed obstacle behind the prior.
+#: The prior's second half (:meth:`Replanner.suspect_route`): unseen cells this close to the map's own route (m)
+#: cost this many times their length once an obstacle was observed. Chosen on the same model (WRITEUP).
+ROUTE_WEIGHT, ROUTE_RADIUS_M = 3.0, 20.0
+#: Coarse cell (m) of the prior's distances (to the nearest observed obstacle, to the map's route).
 _SUSPECT_CELL_M = 4
 
 
@@ -63,6 +68,18 @@ class GoalUnreachable(PlanningError):
         self.goal_ne, self.fallback_ne = tuple(goal_ne), fallback_ne
         super().__init__(f"the goal ({goal_ne[0]:.1f} N, {goal_ne[1]:.1f} E) cannot be reached: obstacles the map "
                          "does not show cut it off" + _fallback_text(fallback_ne))
+
+
+def _within(cells: np.ndarray, radius_m: float) -> np.ndarray:
+    """Cells within ``radius_m`` of a True cell of ``cells`` (1 m cells), measured on a coarse grid of
+    ``_SUSPECT_CELL_M`` cells (a cell counts when its coarse cell is within reach of one holding a True cell)."""
+    f = _SUSPECT_CELL_M
+    n, m = cells.shape
+    padded = np.zeros((-(-n // f) * f, -(-m // f) * f), bool)
+    padded[:n, :m] = cells
+    coarse = padded.reshape(padded.shape[0] // f, f, padded.shape[1] // f, f).any(axis=(1, 3))
+    near = ndimage.distance_transform_edt(~coarse) * f <= radius_m
+    return np.repeat(np.repeat(near, f, axis=0), f, axis=1)[:n, :m]
 
 
 def _fallback_text(fallback_ne) -> str:
@@ -116,15 +133,22 @@ class Replanner:
     suspect_weight, suspect_radius_m : float
         The stale-map prior of :meth:`refine`: a cell never seen within ``suspect_radius_m`` of an observed
         obstacle costs ``suspect_weight`` times its length (1 turns the prior off).
+    route_weight, route_radius_m : float
+        Its second half, once :meth:`suspect_route` named the map's route: a cell never seen within
+        ``route_radius_m`` of that route costs ``route_weight`` times its length (1 turns it off).
     """
 
     def __init__(self, live: LiveMap, goal_ne: Sequence[float], altitude_m: float, *, look_ahead_m: float = 60.0,
                  method: str = "grid", landable: np.ndarray | None = None, step_m: float = 0.25,
-                 suspect_weight: float = SUSPECT_WEIGHT, suspect_radius_m: float = SUSPECT_RADIUS_M) -> None:
-        if not suspect_weight >= 1.0 or not suspect_radius_m >= 0.0:
-            raise ValueError(f"suspect weight must be >= 1 and radius >= 0, not {suspect_weight}, {suspect_radius_m}")
+                 suspect_weight: float = SUSPECT_WEIGHT, suspect_radius_m: float = SUSPECT_RADIUS_M,
+                 route_weight: float = ROUTE_WEIGHT, route_radius_m: float = ROUTE_RADIUS_M) -> None:
+        for weight, radius in ((suspect_weight, suspect_radius_m), (route_weight, route_radius_m)):
+            if not weight >= 1.0 or not radius >= 0.0:
+                raise ValueError(f"a prior's weight must be >= 1 and its radius >= 0, not {weight}, {radius}")
         self.suspect_weight, self.suspect_radius_m = float(suspect_weight), float(suspect_radius_m)
-        if self.suspect_weight > 1.0 and self.suspect_radius_m > 0.0:
+        self.route_weight, self.route_radius_m = float(route_weight), float(route_radius_m)
+        self._route_near: np.ndarray | None = None
+        if self.suspect_weight > 1.0 and self.suspect_radius_m > 0.0 or self.route_weight > 1.0:
             load_weighted_search()  # compiled (or loaded from numba's disk cache) before the flight, not in it
         if method not in METHODS:
             raise ValueError(f"unknown replanning method {method!r}; choose from {METHODS}")
@@ -264,27 +288,59 @@ class Replanner:
         return Replan(waypoints, plan_ms, path_length(points), path.expanded, snapped)
 
     # ------------------------------------------------------------------------------ the stale-map prior
+    def suspect_route(self, route_ne: np.ndarray) -> None:
+        """Name the route the map chose (``(K, 2+)`` map points, e.g. the first plan's waypoints): once an
+        obstacle the map does not show has been observed, unseen cells within ``route_radius_m`` of it cost
+        ``route_weight`` times their length under the prior (:meth:`suspect_weights`).
+
+        Where a map proved wrong on the route it chose, the rest of that route is the likeliest place for it to be
+        wrong again: a change that matters is one across the way the map sends you (a closed street, a site along
+        it), and a detour that rejoins the map's route soon after the first obstacle often meets the next. Cells
+        the sensor has seen free are exempt, as for the other half of the prior.
+
+        >>> live = LiveMap(np.zeros((40, 40), bool), None, 0, 0, safety_m=2.0, confirm_hits=1)
+        >>> r = Replanner(live, (35.5, 35.5), 5.0, suspect_weight=1.0, route_radius_m=4.0)
+        >>> r.suspect_route(np.array([[25.5, 0.5], [25.5, 39.5]]))
+        >>> r.suspect_weights() is None    # nothing observed yet: the map is trusted
+        True
+        >>> _ = live.add_scan(30.5, 5.5, np.radians([180.0]), np.radians(1.0), np.array([10.0]), 30.0)
+        >>> w = r.suspect_weights(); float(w[25, 30]), float(w[35, 30]), float(w[25, 5])  # on, off, seen free
+        (3.0, 1.0, 1.0)
+        """
+        route = np.asarray(route_ne, float).reshape(-1, np.shape(route_ne)[-1])[:, :2]
+        live = self.live
+        n, m = live.shape
+        on = np.zeros((n, m), bool)
+        for a, b in zip(route[:-1], route[1:]):
+            k = max(2, int(math.ceil(float(np.hypot(*(b - a))) / 0.5)) + 1)
+            cells = np.floor(a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)
+                             - (live.north_offset, live.east_offset)).astype(np.int64)
+            inside = (cells[:, 0] >= 0) & (cells[:, 0] < n) & (cells[:, 1] >= 0) & (cells[:, 1] < m)
+            on[cells[inside, 0], cells[inside, 1]] = True
+        self._route_near = _within(on, self.route_radius_m) if self.route_weight > 1.0 and on.any() else None
+
     def suspect_weights(self) -> np.ndarray | None:
         """Per-cell cost factors of the prior, ``(n, m)``, or None when it adds nothing (no observed obstacle, or
-        turned off): ``suspect_weight`` on cells never seen (neither free nor hit) within ``suspect_radius_m`` of
-        an observed obstacle cell (measured on a 4 m coarse grid), 1 elsewhere."""
+        turned off): on cells never seen (neither free nor hit), ``suspect_weight`` within ``suspect_radius_m`` of
+        an observed obstacle cell and ``route_weight`` within ``route_radius_m`` of the map's route
+        (:meth:`suspect_route`), the larger where both hold (distances on a 4 m coarse grid); 1 elsewhere."""
         if not self._prior_applies():
             return None
         return self._weights(self.live.hits, self.live.known)
 
     def _prior_applies(self) -> bool:
         """The prior is on and has something to go on (an observed obstacle)."""
-        return self.suspect_weight > 1.0 and self.suspect_radius_m > 0.0 and bool(self.live.hits.any())
+        on = self.suspect_weight > 1.0 and self.suspect_radius_m > 0.0 or self._route_near is not None
+        return on and bool(self.live.hits.any())
 
     def _weights(self, hits: np.ndarray, known: np.ndarray) -> np.ndarray:
-        f = _SUSPECT_CELL_M
-        n, m = hits.shape
-        padded = np.zeros((-(-n // f) * f, -(-m // f) * f), bool)
-        padded[:n, :m] = hits
-        coarse = padded.reshape(padded.shape[0] // f, f, padded.shape[1] // f, f).any(axis=(1, 3))
-        near = ndimage.distance_transform_edt(~coarse) * f <= self.suspect_radius_m
-        near = np.repeat(np.repeat(near, f, axis=0), f, axis=1)[:n, :m]
-        return np.where(near & ~known, self.suspect_weight, 1.0)
+        weights = np.ones(hits.shape)
+        if self.suspect_weight > 1.0 and self.suspect_radius_m > 0.0:
+            weights[_within(hits, self.suspect_radius_m)] = self.suspect_weight
+        if self._route_near is not None:
+            weights[self._route_near] = np.maximum(weights[self._route_near], self.route_weight)
+        weights[known] = 1.0
+        return weights
 
     def prior_cost(self, points_ne: np.ndarray, weights: np.ndarray | None = None) -> float:
         """A route's length under the prior: metres along ``points_ne`` (``(K, 2)`` map) times the weight of the

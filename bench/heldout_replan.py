@@ -144,8 +144,12 @@ def main(argv: list[str] | None = None) -> int:
     workdir.mkdir(parents=True, exist_ok=True)
     rows, passed = [], 0
     for k, (start_ne, goal_ne) in enumerate(missions(gm, args.missions, args.seed)):
-        change = walls_across_route(city.obstacles, start_ne, goal_ne, altitude_m=ALT_M, safety_m=SAFETY_M,
-                                    count=args.walls, seed=args.seed + k)
+        try:
+            change = walls_across_route(city.obstacles, start_ne, goal_ne, altitude_m=ALT_M, safety_m=SAFETY_M,
+                                        count=args.walls, seed=args.seed + k)
+        except (PlanningError, ValueError) as exc:  # no detour survives the walls, or too little straight street
+            print(f"mission {k}: {start_ne} -> {goal_ne}: skipped ({exc})", flush=True)
+            continue
         truth = workdir / f"city-{k}.csv"
         write_colliders(truth, change.obstacles, city.lat0_deg, city.lon0_deg)
         start = ned_to_geodetic(LocalNED(start_ne[0], start_ne[1], 0.0), home)

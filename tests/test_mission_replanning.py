@@ -4,6 +4,8 @@ sim's own sector model), while the mission plans on a stale map. The live layer 
 from __future__ import annotations
 
 import math
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -250,6 +252,44 @@ def test_a_replanned_route_is_refined_once_and_the_refined_route_is_flown():
     assert result.replans[-1].refine_ms == 5.0 and "refined under the stale-map prior" in result.replans[-1].describe()
     assert np.allclose(result.replans[-1].waypoints[-1, :2], GOAL)
     assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
+
+
+def test_a_refinement_overtaken_by_the_next_replan_never_runs():
+    """A wall seen a piece at a time is replanned at the sensor rate, faster than a refinement runs: only the one
+    running and the one for the route flown now may run, not a queue of refinements of routes given up."""
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gate, ran = threading.Event(), []
+
+    class Slow(Replanner):
+        def refine_job(self, position_ne, current_ne):
+            k = len(asked)
+            asked.append(k)
+
+            def job():
+                ran.append(k)
+                gate.wait(10.0)
+
+            return job
+
+    asked: list[int] = []
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    mission = _mission(v, clock, Slow(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT), [])
+    mission.result.waypoints = np.array([[*START, ALT, 0.0], [*GOAL, ALT, 0.0]])
+    try:
+        for _ in range(4):  # replanned four times in a row, each route's refinement asked for at once
+            mission._forget_refinement()
+            mission._refine()
+        deadline = time.monotonic() + 5.0
+        while not ran and time.monotonic() < deadline:
+            time.sleep(0.01)
+        gate.set()
+        last = mission._refining
+        assert last is not None and last.result(timeout=5.0) is None
+    finally:
+        gate.set()
+        mission._stop_refining()
+    assert asked == [0, 1, 2, 3] and ran == [0, 3]
 
 
 class _RefiningBadly(Replanner):

@@ -347,7 +347,7 @@ class ReplanningMixin:
         from .states import MissionEvent as E
 
         self._fire(E.PATH_BLOCKED)
-        self._refining = None  # a refinement of the route now blocked is moot
+        self._forget_refinement()  # a refinement of the route now blocked is moot
         if self._pending is None:
             self._reading_s, self._first_setpoint_ms = self.sensing.blocking_reading_s, math.nan
         # else the last replan's route was blocked before its first setpoint went out (seen more while braking):
@@ -462,7 +462,16 @@ class ReplanningMixin:
             return
         if self._refine_pool is None:
             self._refine_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="refine")
+        self._forget_refinement()
         self._refining = self._refine_pool.submit(job)
+
+    def _forget_refinement(self) -> None:
+        """Drop the refinement asked for last: one not started yet never runs (a wall seen a piece at a time is
+        replanned at the sensor rate, faster than a refinement runs, and a queue of refinements of routes already
+        given up would hold back the one for the route flown); a running one finishes unheeded."""
+        future, self._refining = self._refining, None
+        if future is not None:
+            future.cancel()
 
     def _take_refined(self, p) -> None:
         """Each poll of the flight: a finished refinement with a better route that is still clear of the live

@@ -462,7 +462,6 @@ class ReplanningMixin:
             return
         if self._refine_pool is None:
             self._refine_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="refine")
-        self._forget_refinement()
         self._refining = self._refine_pool.submit(job)
 
     def _forget_refinement(self) -> None:

@@ -307,7 +307,7 @@ class Replanner:
         >>> w = r.suspect_weights(); float(w[25, 30]), float(w[35, 30]), float(w[25, 5])  # on, off, seen free
         (3.0, 1.0, 1.0)
         """
-        route = np.asarray(route_ne, float).reshape(-1, np.shape(route_ne)[-1])[:, :2]
+        route = np.asarray(route_ne, float)[:, :2]
         live = self.live
         n, m = live.shape
         on = np.zeros((n, m), bool)

@@ -182,6 +182,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="answer the first N arm requests TEMPORARILY_REJECTED")
     g.add_argument("--deny-command", type=_command, action="append", default=[], metavar="NAME",
                    help="answer this MAV_CMD DENIED, e.g. NAV_TAKEOFF or MAV_CMD_NAV_LAND or 22 (repeatable)")
+    g.add_argument("--battery-low", type=_ranged(0, 1e6), default=None, metavar="T",
+                   help="the battery reads low T simulated seconds after start; the low-battery failsafe acts as "
+                        "its parameter says (px4 COM_LOW_BAT_ACT, default 2: land; ardupilot BATT_FS_LOW_ACT, "
+                        "default 0: warn only)")
     return p
 
 
@@ -200,6 +204,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         outage_duration_s=0.0 if args.outage is None else args.outage[1],
         deny_arm_count=args.deny_arm,
         deny_commands=tuple(args.deny_command),
+        battery_low_s=args.battery_low,
     )
     return SimConfig(
         map_path=args.map, host=args.host, port=args.port, speedup=args.speedup, start=args.start,

@@ -1,4 +1,5 @@
-"""Failsafes when the client goes quiet: PX4's offboard loss and both autopilots' GCS heartbeat loss.
+"""Failsafes when the client goes quiet (PX4's offboard loss and both autopilots' GCS heartbeat loss), when the
+battery runs low (``--battery-low``) and when the vehicle leaves its geofence round home.
 
 All timers run in simulated seconds at the real parameter values (see ``scale_timeouts`` in sim/__init__.py).
 Measured on the real autopilots:
@@ -18,12 +19,27 @@ ArduCopter GCS failsafe
     FS_GCS_ENABLE = 0 nothing happens (SITL stayed GUIDED and armed at 10 m); otherwise "GCS Failsafe" and RTL
     (1, 2, 3, 6), SMART_RTL (4) or LAND (5, 7); "GCS Failsafe Cleared" when heartbeats return (the mode stays).
 
+Low battery (the fault ``battery_low_s``)
+    ArduCopter (SITL, BATT_FS_LOW_ACT 2, its battery made low in flight): "Battery 1 is low 10.00V used 177 mAh"
+    and "Battery Failsafe" (both MAV_SEVERITY_WARNING), then RTL; BATT_FS_LOW_ACT 0 (the default) only warns.
+    PX4 announces the failsafes of its failsafe framework as "Failsafe activated" alone (measured on PX4 1.15 SITL
+    for a geofence breach; its cause goes in an EVENT); COM_LOW_BAT_ACT 0 only warns, 2 (SITL's default) Land,
+    3 Return. The sim's "low" is PX4's critical level, where it acts.
+
+Geofence round home
+    ArduCopter (SITL, FENCE_ENABLE 1, FENCE_RADIUS 150, FENCE_ACTION 1, flying out in GUIDED): "Circle fence
+    breached" (MAV_SEVERITY_NOTICE) and RTL at once; "Fence breach cleared" once back inside (the mode stays).
+    The altitude fence (FENCE_TYPE bit 1, FENCE_ALT_MAX) is modelled the same way, "Altitude fence breached".
+    PX4 (SITL, GF_MAX_HOR_DIST 60, GF_ACTION 3, flying out in OFFBOARD): "Failsafe activated" and nothing else:
+    it stayed in OFFBOARD and flew on. In the other modes the sim takes GF_ACTION (PX4's documented behaviour).
+
 ArduCopter GUIDED's own timeout (a velocity target lasts GUID_TIMEOUT) is part of the setpoint, see
 :meth:`sim.autopilot.Autopilot.control_target`.
 """
 
 from __future__ import annotations
 
+import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from .modes import Behaviour
@@ -36,6 +52,15 @@ OFFBOARD_LOSS_ACTIONS: dict[int, tuple[str, bool] | None] = {
 }
 #: NAV_DLL_ACT -> PX4 mode; None = motors stop.
 PX4_DATALINK_ACTIONS: dict[int, str | None] = {1: "LOITER", 2: "RTL", 3: "LAND", 5: None, 6: None}
+#: COM_LOW_BAT_ACT -> PX4 mode.
+PX4_LOW_BATTERY_ACTIONS = {2: "LAND", 3: "RTL"}
+#: BATT_FS_LOW_ACT -> ArduCopter mode; None = motors stop.
+ARDUPILOT_LOW_BATTERY_ACTIONS: dict[int, str | None] = {1: "LAND", 2: "RTL", 3: "SMART_RTL", 4: "SMART_RTL",
+                                                        5: None}
+#: FENCE_ACTION -> ArduCopter mode.
+ARDUPILOT_FENCE_ACTIONS = {1: "RTL", 2: "LAND", 3: "SMART_RTL", 4: "BRAKE", 5: "SMART_RTL"}
+#: GF_ACTION -> PX4 mode; None = motors stop.
+PX4_FENCE_ACTIONS: dict[int, str | None] = {2: "LOITER", 3: "RTL", 4: None, 5: "LAND"}
 #: FS_GCS_ENABLE -> ArduCopter mode.
 ARDUPILOT_GCS_ACTIONS = {1: "RTL", 2: "RTL", 3: "RTL", 4: "SMART_RTL", 5: "LAND", 6: "RTL", 7: "LAND"}
 
@@ -48,6 +73,8 @@ class Failsafes:
         self.offboard_fallback: str | None = None  # the failsafe mode that gives way to OFFBOARD again
         self.gcs_heartbeat_s: float | None = None
         self.gcs_lost = False
+        self.battery_low: str | None = None  # "low" from battery_low_s on, "acted" once its failsafe acted
+        self.fence_breached = False
 
     # ------------------------------------------------------------------ inputs
     def on_heartbeat(self, msg) -> None:
@@ -73,6 +100,87 @@ class Failsafes:
         if ap.is_px4 and ap.cfg.strict:
             self._offboard()
         self._gcs()
+        self._battery()
+        self._fence()
+
+    def _fence(self) -> None:
+        ap = self.ap
+        if ap.home_neu is None or not (ap.armed and ap.airborne):
+            return
+        offset = ap.position_neu - ap.home_neu
+        horizontal, up = float(np.hypot(offset[0], offset[1])), float(offset[2])
+        if ap.is_px4:
+            radius, height = ap.params["GF_MAX_HOR_DIST"], ap.params["GF_MAX_VER_DIST"]
+            which = ("horizontal" if 0 < radius < horizontal else "vertical" if 0 < height < up else None)
+            action = int(ap.params["GF_ACTION"])
+            on = action != 0
+        else:
+            kinds, action = int(ap.params["FENCE_TYPE"]), int(ap.params["FENCE_ACTION"])
+            which = ("Circle" if kinds & 2 and horizontal > ap.params["FENCE_RADIUS"]
+                     else "Altitude" if kinds & 1 and up > ap.params["FENCE_ALT_MAX"] else None)
+            on = bool(ap.params["FENCE_ENABLE"])
+        if not on:
+            return
+        if which is None:
+            if self.fence_breached:
+                self.fence_breached = False
+                if not ap.is_px4:
+                    ap.statustext(M.MAV_SEVERITY_NOTICE, "Fence breach cleared")
+            return
+        if self.fence_breached:
+            return
+        self.fence_breached = True
+        if ap.is_px4:
+            ap.emit("failsafe", f"geofence breached ({which}) -> GF_ACTION {action}")
+            if action == 1:
+                return
+            ap.statustext(M.MAV_SEVERITY_WARNING, "Failsafe activated\t")
+            if ap.mode.behaviour == Behaviour.OFFBOARD or action not in PX4_FENCE_ACTIONS:
+                return  # measured: PX4 1.15 flew on in OFFBOARD
+            mode_name = PX4_FENCE_ACTIONS[action]
+            if mode_name is None:
+                ap.cut_motors("geofence: GF_ACTION terminate")
+                return
+        else:
+            ap.statustext(M.MAV_SEVERITY_NOTICE, f"{which} fence breached")
+            ap.emit("failsafe", f"{which.lower()} fence breached -> FENCE_ACTION {action}")
+            if action not in ARDUPILOT_FENCE_ACTIONS:
+                return
+            mode_name = ARDUPILOT_FENCE_ACTIONS[action]
+        ap.enter_mode(ap.personality.modes[mode_name], user=False)
+
+    def _battery(self) -> None:
+        """From ``battery_low_s`` on the battery reads low: the failsafe acts once, the first time the vehicle is
+        armed and in the air (ArduCopter warns at once)."""
+        ap = self.ap
+        at = ap.cfg.faults.battery_low_s
+        if self.battery_low == "acted" or at is None or ap.sim_time_s < at:
+            return
+        if not self.battery_low:
+            self.battery_low = "low"
+            if not ap.is_px4:
+                ap.statustext(M.MAV_SEVERITY_WARNING, "Battery 1 is low 10.00V used 177 mAh")
+        if not (ap.armed and ap.airborne):
+            return
+        self.battery_low = "acted"
+        if ap.is_px4:
+            action = int(ap.params["COM_LOW_BAT_ACT"])
+            ap.emit("failsafe", f"battery low -> COM_LOW_BAT_ACT {action}")
+            mode_name = PX4_LOW_BATTERY_ACTIONS.get(action)
+            if mode_name is None:
+                return
+            ap.statustext(M.MAV_SEVERITY_WARNING, "Failsafe activated\t")
+        else:
+            action = int(ap.params["BATT_FS_LOW_ACT"])
+            ap.emit("failsafe", f"battery low -> BATT_FS_LOW_ACT {action}")
+            if action not in ARDUPILOT_LOW_BATTERY_ACTIONS:
+                return
+            ap.statustext(M.MAV_SEVERITY_WARNING, "Battery Failsafe")
+            mode_name = ARDUPILOT_LOW_BATTERY_ACTIONS[action]
+            if mode_name is None:
+                ap.cut_motors("low battery: BATT_FS_LOW_ACT terminate")
+                return
+        ap.enter_mode(ap.personality.modes[mode_name], user=False)
 
     def _offboard(self) -> None:
         ap = self.ap

@@ -16,6 +16,11 @@ Command faults:
 * ``deny_arm_count``: the first N arm requests are answered TEMPORARILY_REJECTED.
 * ``deny_commands``: named MAV_CMDs (``MAV_CMD_NAV_TAKEOFF``, ``NAV_TAKEOFF`` or ``22``) are answered
   DENIED.
+
+Vehicle faults:
+
+* ``battery_low_s``: this many simulated seconds after start the battery reads low; the autopilot's low-battery
+  failsafe acts as its parameters say (:mod:`sim.failsafes`; by default PX4 lands, ArduCopter only warns).
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ class FaultConfig:
     outage_duration_s: float = 0.0
     deny_arm_count: int = 0
     deny_commands: tuple[str, ...] = ()
+    battery_low_s: float | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.packet_loss_pct <= 100.0:  # also refuses NaN
@@ -50,6 +56,8 @@ class FaultConfig:
             raise ValueError(f"deny-arm count must be a whole number >= 0, not {self.deny_arm_count}")
         for name in self.deny_commands:
             command_id(name)
+        if self.battery_low_s is not None and not 0.0 <= self.battery_low_s <= 1e6:
+            raise ValueError(f"battery-low time must be in [0, 1e6] s, not {self.battery_low_s}")
 
     def active(self) -> list[str]:
         """Human-readable list of the faults that are on."""
@@ -64,6 +72,8 @@ class FaultConfig:
             out.append(f"deny first {self.deny_arm_count} arm(s)")
         if self.deny_commands:
             out.append("deny " + ",".join(self.deny_commands))
+        if self.battery_low_s is not None:
+            out.append(f"battery low at {self.battery_low_s:g} s")
         return out
 
 

@@ -60,6 +60,11 @@ PX4_PARAMS: dict[str, ParamSpec] = {
     "MPC_LAND_SPEED": ParamSpec(0.7, REAL32, "landing descent rate (m/s)"),
     "MIS_TAKEOFF_ALT": ParamSpec(2.5, REAL32, "takeoff height above home when NAV_TAKEOFF param7 is NaN (m)"),
     "RTL_RETURN_ALT": ParamSpec(30.0, REAL32, "RTL climbs to this height above home first (m)"),
+    "COM_LOW_BAT_ACT": ParamSpec(2, INT32, "critical battery action (--battery-low): 0 warning, 2 land, 3 return"),
+    "GF_ACTION": ParamSpec(2, INT32, "geofence breach: 0 none, 1 warning, 2 hold, 3 return, 5 land (in OFFBOARD "
+                                     "only \"Failsafe activated\", as measured on PX4 1.15 SITL)"),
+    "GF_MAX_HOR_DIST": ParamSpec(0.0, REAL32, "geofence: the most (m) from home horizontally (0: none)"),
+    "GF_MAX_VER_DIST": ParamSpec(0.0, REAL32, "geofence: the most (m) above home (0: none)"),
 }
 
 ARDUPILOT_PARAMS: dict[str, ParamSpec] = {
@@ -77,6 +82,16 @@ ARDUPILOT_PARAMS: dict[str, ParamSpec] = {
     "DISARM_DELAY": ParamSpec(10, INT8, "landed (or armed on the ground) for this long (s) -> disarm (0: off)"),
     "PILOT_TKOFF_ALT": ParamSpec(0.0, REAL32, "takeoff height when NAV_TAKEOFF param7 is NaN (cm; at least 1 m)"),
     "RTL_ALT": ParamSpec(1500, INT32, "RTL climbs to this height above home first (cm)"),
+    "BATT_FS_LOW_ACT": ParamSpec(0, INT8, "low battery action (--battery-low): 0 warning, 1 land, 2 RTL, "
+                                          "3/4 SmartRTL, 5 terminate"),
+    "FENCE_ENABLE": ParamSpec(0, INT8, "geofence on (1) or off (0)"),
+    "FENCE_TYPE": ParamSpec(7, INT8, "fence kinds, bits: 1 max altitude, 2 circle round home (4 polygon: not "
+                                     "simulated)"),
+    "FENCE_ACTION": ParamSpec(1, INT8, "breach: 0 report only, 1 RTL, 2 land, 3/5 SmartRTL, 4 brake"),
+    "FENCE_RADIUS": ParamSpec(150.0, REAL32, "circle fence radius round home (m; SITL's copter.parm sets 150, the "
+                                             "firmware's default is 300)"),
+    "FENCE_ALT_MAX": ParamSpec(100.0, REAL32, "altitude fence above home (m)"),
+    "FENCE_MARGIN": ParamSpec(2.0, REAL32, "how far inside the fence the autopilot tries to stay (m)"),
 }
 
 #: Link-loss timeouts that ``SimConfig(scale_timeouts=True)`` multiplies by the speedup (see sim/__init__.py).

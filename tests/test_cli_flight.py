@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import signal
 import socket
 import threading
@@ -513,6 +514,52 @@ def test_a_second_and_third_mission_fly_on_the_same_running_sim(start_sim, tmp_p
     assert distance_m(landed["lat_deg"], landed["lon_deg"], *to_latlon(*GOAL_SHORT)) < 1.0
     assert_down_and_disarmed(report)
     assert_no_failsafe(report)
+
+
+@pytest.mark.parametrize(("autopilot", "param", "said"), [
+    ("ardupilot", {"BATT_FS_LOW_ACT": 2}, "the autopilot's own failsafe put the vehicle in RTL (it said 'Battery "
+                                          "Failsafe')"),
+    ("px4", {"COM_LOW_BAT_ACT": 3}, "the vehicle went to RTL and nothing on our side explains it (an operator or "
+                                    "the autopilot's own failsafe sent it home or down)"),
+])
+def test_the_autopilots_low_battery_return_is_respected_not_fought(start_sim, tmp_path, capsys, block_map, watchdog,
+                                                                    autopilot, param, said):
+    # the battery reads low before takeoff; its failsafe acts once the vehicle is in the air: the autopilot returns
+    # home. Taking our mode back would fly the mission on against it (ArduCopter SITL, before this was fixed)
+    watchdog(90.0)
+    sim = start_sim(map_path=block_map, autopilot=autopilot, params=param,
+                    faults=FaultConfig(battery_low_s=12.0))
+    code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)
+    report = sim.stop()
+    out, err = capsys.readouterr()
+    assert code == EXIT_FAILED, err
+    assert f"error: mission failed: {said}; handed over, not taking control back; it landed at map" in err
+    acted = [e["sim_time_s"] for e in report["events"] if e["kind"] == "failsafe" and "battery low" in e["text"]]
+    assert len(acted) == 1
+    assert not [c for c in report["commands"] if c["name"] == "MAV_CMD_DO_SET_MODE"
+                and c["sim_time_s"] > acted[0]]  # never asked for its mode back
+    landed = report["landed"]
+    assert distance_m(landed["lat_deg"], landed["lon_deg"], LAT0, LON0) < 2.0  # home, where the return took it
+    assert_down_and_disarmed(report)
+
+
+@pytest.mark.parametrize(("autopilot", "params", "allows", "fence"), [
+    ("ardupilot", {"FENCE_ENABLE": 1, "FENCE_RADIUS": 100}, 98,
+     "FENCE_RADIUS=100 m and FENCE_ALT_MAX=100 m, FENCE_MARGIN=2 m; a breach does RTL or LAND"),
+    ("px4", {"GF_MAX_HOR_DIST": 100, "GF_ACTION": 3}, 100,
+     "GF_MAX_HOR_DIST=100 m; a breach does Return (GF_ACTION=3)"),
+])
+def test_a_goal_beyond_the_autopilots_geofence_is_refused_before_arming(start_sim, tmp_path, capsys, block_map,
+                                                                         autopilot, params, allows, fence):
+    # ArduCopter SITL with FENCE_ENABLE 1 flew out to its FENCE_RADIUS and returned ("Circle fence breached", RTL)
+    sim = start_sim(map_path=block_map, autopilot=autopilot, params=params)
+    code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)  # ~120 m from home, round the block
+    report = sim.stop()
+    _, err = capsys.readouterr()
+    assert code == EXIT_BAD_INPUT
+    assert re.fullmatch(rf"error: the route leaves the autopilot's geofence: it goes 12\d m from home, the fence "
+                        rf"allows {allows} m \({re.escape(fence)}\); never armed", err.strip()), err
+    assert_never_armed(report)
 
 
 def test_a_3_s_outage_mid_flight_is_ridden_out_and_the_mission_completes(start_sim, tmp_path, capsys, block_map,

@@ -21,6 +21,7 @@ from skyroute.flight import path as fp
 from skyroute.flight.mission import MissionEvent as E
 from skyroute.flight.mission import MissionState as S
 from skyroute.frames import Geodetic, LocalNED
+from skyroute.vehicle.limits import Geofence
 
 ORIGIN = Geodetic(37.79248, -122.39745, 0.0)
 OFFSET = LocalNED(100.0, -50.0, 0.0)  # the autopilot's local origin is 100 m S, 50 m E of the map origin
@@ -423,7 +424,8 @@ class Kind:
     value: str
 
 
-KINDS = {"offboard": "ours", "hold": "hold", "land": "return", "posctl": "pilot"}
+KINDS = {"offboard": "ours", "hold": "hold", "land": "return", "rtl": "return", "return-hover": "return",
+         "posctl": "pilot"}
 
 
 class FakeVehicle:
@@ -442,7 +444,8 @@ class FakeVehicle:
         self.disarm_refusals = 0
         self.climbs = climbs
         self.ready_at_s = ready_at_s
-        self.hint = None
+        self.hint = None  # failsafe_hint(): a failsafe on our side
+        self.own = None  # own_failsafe(): the autopilot's words for a failsafe of its own
         self.limits = CoastLimits()
         self.limits.leaves_flying = False
         self.setpoint = None
@@ -480,8 +483,12 @@ class FakeVehicle:
     def readiness(self):
         return FakeReadiness(() if self.clock.now >= self.ready_at_s else ("a global position estimate",))
 
-    def failsafe_hint(self):
-        return self.hint
+    def failsafe_hint(self, *, texts=True):
+        said = (self.hint or "").startswith("the autopilot said")  # the text rule, as the real vehicle words it
+        return self.hint if texts or not said else None
+
+    def own_failsafe(self):
+        return self.own
 
     def map_offset(self, map_origin, ground_amsl_m):
         assert map_origin == ORIGIN
@@ -569,7 +576,7 @@ class FakeVehicle:
                 velocity = delta / dist * step / dt
                 t.north_m, t.east_m, t.down_m = here + delta / dist * step
                 t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps = velocity
-        elif self.mode == "land" and t.down_m < 0:
+        elif self.mode in ("land", "rtl") and t.down_m < 0:  # a return, simplified: down where it is
             t.down_m = min(0.0, t.down_m + 1.5 * dt)
             t.local_v_down_mps = 1.5
         t.on_ground = t.down_m >= 0.0
@@ -1069,6 +1076,81 @@ def test_a_pilot_mode_a_failsafe_explains_is_taken_back(clock):
     clock.at(8.0, lambda: (setattr(v, "mode", "posctl"), setattr(v, "hint", "the autopilot said 'Failsafe'")))
     result = make_mission(v, clock, straight_plan([])).run()
     assert result.completed and v.calls.count("take_control") == 1
+
+
+def test_a_failsafe_the_autopilot_names_as_its_own_is_respected_not_fought(clock):
+    # ArduCopter SITL with BATT_FS_LOW_ACT 2, its battery made low in flight (measured): "Battery 1 is low 10.00V
+    # used 177 mAh", "Battery Failsafe", RTL. Taking GUIDED back flew the mission on against the autopilot.
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(8.0, lambda: (setattr(v, "mode", "rtl"), setattr(v, "own", "Battery Failsafe"),
+                           setattr(v, "hint", "the autopilot said 'Battery Failsafe'")))
+    with pytest.raises(m.ControlTakenOver, match=r"autopilot's own failsafe put the vehicle in rtl \(it said "
+                                                  r"'Battery Failsafe'\); handed over, not taking control back; "
+                                                  r"it landed at map") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert "take_control" not in v.calls[v.calls.index("takeoff"):] and "land" not in v.calls
+    assert v.calls[-1] == "release_control"
+    assert err.value.result.final_state is S.HANDED_OVER
+    assert err.value.result.track[-1, 3] == pytest.approx(0.0, abs=0.1)  # the track follows it down
+
+
+def test_a_return_that_does_not_end_is_followed_only_for_the_watch_time(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(8.0, lambda: (setattr(v, "mode", "return-hover"), setattr(v, "own", "Battery Failsafe")))
+    with pytest.raises(m.ControlTakenOver, match="still in the air in return-hover after 20 s"):
+        make_mission(v, clock, straight_plan([]), handover_watch_s=20.0).run()
+    assert 28.0 <= clock.now <= 28.5
+
+
+def test_a_hold_the_autopilot_chose_is_handed_over_at_once(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(8.0, lambda: (setattr(v, "mode", "hold"), setattr(v, "own", "Geofence breached")))
+    with pytest.raises(m.ControlTakenOver, match="own failsafe put the vehicle in hold"):
+        make_mission(v, clock, straight_plan([])).run()
+    assert clock.now <= 8.5
+
+
+@pytest.mark.parametrize("mode", ["hold", "posctl"])
+def test_an_own_failsafe_is_respected_whatever_mode_it_chose(clock, mode):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(8.0, lambda: (setattr(v, "mode", mode), setattr(v, "own", "Geofence breached")))
+    with pytest.raises(m.ControlTakenOver, match="own failsafe"):
+        make_mission(v, clock, straight_plan([])).run()
+    assert "take_control" not in v.calls
+
+
+def test_a_return_nothing_on_our_side_explains_is_handed_over(clock):
+    # PX4 announces its battery and geofence failsafes only as "Failsafe activated" (measured on PX4 1.15 SITL for
+    # a geofence breach), and an operator may send the vehicle home from another ground station
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(8.0, lambda: (setattr(v, "mode", "rtl"), setattr(v, "hint", "the autopilot said 'Failsafe activated'")))
+    with pytest.raises(m.ControlTakenOver, match="went to rtl and nothing on our side explains it"):
+        make_mission(v, clock, straight_plan([])).run()
+    assert "take_control" not in v.calls
+
+
+def test_a_return_our_own_setpoint_pause_explains_is_taken_back(clock):
+    # PX4's offboard-loss failsafe with COM_OBL_RC_ACT 3 (Return): our setpoints paused, so it is ours to undo
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(8.0, lambda: (setattr(v, "mode", "land"), setattr(v, "hint", "our setpoints paused for 1.2 s")))
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and v.calls.count("take_control") == 1
+
+
+def test_a_route_that_leaves_the_autopilots_geofence_is_refused_before_arming(clock):
+    # ArduCopter SITL, FENCE_ENABLE 1, FENCE_RADIUS 150: "Circle fence breached" and RTL 150 m out (measured)
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.limits.fence = Geofence(70.0, 98.0, "FENCE_RADIUS=72 m, FENCE_MARGIN=2 m; a breach does RTL or LAND")
+    with pytest.raises(m.OutsideGeofence, match=r"leaves the autopilot's geofence: it goes 72 m from home, the fence "
+                                                r"allows 70 m \(FENCE_RADIUS=72 m.*\); never armed") as err:
+        make_mission(v, clock, straight_plan([])).run()
+    assert "arm" not in v.calls and err.value.result.final_state is S.MANUAL
+
+
+def test_a_route_inside_the_geofence_flies(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.limits.fence = Geofence(75.0, 98.0, "FENCE_RADIUS=77 m")
+    assert make_mission(v, clock, straight_plan([])).run().completed
 
 
 def test_control_that_cannot_be_taken_back_ends_in_a_landing(clock):

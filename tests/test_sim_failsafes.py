@@ -188,6 +188,78 @@ def test_ardupilot_gcs_heartbeat_loss(sim_start, sim_connect, fs_gcs_enable, mod
         assert "GCS Failsafe" not in texts
 
 
+@pytest.mark.flight
+@pytest.mark.parametrize("batt_fs_low_act, mode", [(0, "GUIDED"), (2, "RTL"), (1, "LAND")])
+def test_ardupilot_low_battery_warns_then_takes_batt_fs_low_act_once_airborne(sim_start, sim_connect,
+                                                                              batt_fs_low_act, mode):
+    """SITL with BATT_FS_LOW_ACT 2: "Battery 1 is low 10.00V used 177 mAh", "Battery Failsafe", RTL; 0 (the
+    default) only warns. The battery reads low from 3 s on, the vehicle may not be flying yet: the failsafe waits
+    for it to fly."""
+    sim = sim_start(autopilot="ardupilot", speedup=10.0, params={"BATT_FS_LOW_ACT": batt_fs_low_act},
+                    faults={"battery_low_s": 3.0})
+    c = sim_connect(sim)
+    c.wait_for("HEARTBEAT")
+    wait_ready(sim)
+    assert sim.truth()["mode"] != "RTL"
+    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == 0
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 10).result == 0
+    if batt_fs_low_act:
+        c.wait_for("STATUSTEXT", lambda m: m.text == "Battery Failsafe", timeout_s=5)
+    else:
+        sim.wait_until(lambda s: abs(s["position"]["up_m"] - 10) < 0.1, 15)
+        assert "Battery Failsafe" not in [m.text for m in c.of_type("STATUSTEXT")]
+    c.wait_for("STATUSTEXT", lambda m: m.text == "Battery 1 is low 10.00V used 177 mAh", timeout_s=5)
+    assert [m.text for m in c.of_type("STATUSTEXT")].count("Battery 1 is low 10.00V used 177 mAh") == 1
+    assert sim.truth()["mode"] == mode
+    assert len([e for e in sim.report()["events"] if e["kind"] == "failsafe" and "battery low" in e["text"]]) == 1
+
+
+def test_px4_low_battery_announces_failsafe_activated_and_lands_by_default(sim_start, sim_connect):
+    sim = sim_start(speedup=10.0, faults={"battery_low_s": 0.0})  # COM_LOW_BAT_ACT 2 (Land): PX4 1.15 SITL's default
+    c = sim_connect(sim)
+    c.start_heartbeats(10.0)
+    c.wait_for("HEARTBEAT")
+    wait_ready(sim)
+    since = c.mark()
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, NAN, NAN, NAN).result == 0
+    c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", since=since, timeout_s=5)
+    assert sim.truth()["mode"] == "LAND"
+
+
+@pytest.mark.flight
+def test_ardupilot_fence_breach_announces_and_returns_then_clears(sim_start, sim_connect):
+    """SITL, FENCE_ENABLE 1, FENCE_ACTION 1: "Circle fence breached" (NOTICE) and RTL at once; "Fence breach
+    cleared" once back inside, the mode staying RTL. Here the altitude fence, the same way."""
+    sim = sim_start(autopilot="ardupilot", speedup=10.0, params={"FENCE_ENABLE": 1, "FENCE_ALT_MAX": 6})
+    c = sim_connect(sim)
+    c.wait_for("HEARTBEAT")
+    wait_ready(sim)
+    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == 0
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 10).result == 0
+    breach = c.wait_for("STATUSTEXT", lambda m: m.text == "Altitude fence breached", timeout_s=10)
+    assert breach.severity == M.MAV_SEVERITY_NOTICE
+    sim.wait_until(lambda s: s["mode"] == "RTL", 2)
+    assert len([e for e in sim.report()["events"] if e["kind"] == "failsafe"]) == 1  # once, until cleared
+
+
+def test_px4_geofence_breach_in_offboard_only_announces(sim_start, sim_connect):
+    """PX4 1.15 SITL, GF_MAX_HOR_DIST 60, GF_ACTION 3, flying out in OFFBOARD: "Failsafe activated", and it stayed
+    in OFFBOARD (measured). Outside OFFBOARD it takes GF_ACTION: here the takeoff mode, vertically."""
+    sim = sim_start(speedup=10.0, params={"GF_MAX_VER_DIST": 2, "GF_ACTION": 3})
+    c = sim_connect(sim)
+    c.start_heartbeats(10.0)
+    c.wait_for("HEARTBEAT")
+    wait_ready(sim)
+    since = c.mark()
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, NAN, NAN, NAN).result == 0
+    c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", since=since, timeout_s=5)
+    sim.wait_until(lambda s: s["mode"] == "RTL", 2)
+
+
 def test_px4_datalink_loss_announces_and_takes_nav_dll_act(sim_start, sim_connect):
     sim = sim_start(speedup=10.0, params={"NAV_DLL_ACT": 2})
     c = sim_connect(sim)

@@ -50,6 +50,7 @@ class FakeAutopilot:
         self.foreign_acks, self.other_system, self.key = foreign_acks, other_system, key
         self.deny_text, self.ack_delay_s = deny_text, ack_delay_s
         self.sensors_present = sensors_present
+        self.texts: list[tuple[int, bytes]] = []  # STATUSTEXTs to send once, (severity, text)
         self.unacked: dict[int, int] = {}  # command -> received but not yet answered
         self.overlaps: list[int] = []  # commands received while one of the same kind was still unanswered
         self.requested: set[int] = set()
@@ -142,6 +143,9 @@ class FakeAutopilot:
                     self._handle(enc, msg)
 
     def _telemetry(self, enc):
+        while self.texts:
+            severity, text = self.texts.pop(0)
+            self._send(enc, mavlink.MAVLink_statustext_message(severity, text))
         if self.send_heartbeat:
             base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED
                                                                 if self.armed else 0)
@@ -466,6 +470,27 @@ def test_a_silence_shorter_than_the_autopilots_own_failsafe_timeout_explains_not
     ap.send_heartbeat = ap.send_positions = True
     assert wait_until(lambda: v.health.silent_s() < 0.2)
     assert v.failsafe_hint() is None  # a pilot's mode after this is a pilot's
+
+
+def test_a_failsafe_the_autopilot_names_as_its_own_is_not_counted_as_ours(fake, connect):
+    # ArduCopter SITL's battery failsafe (measured): both texts at MAV_SEVERITY_WARNING, then RTL
+    ap = fake(autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
+    v = connect(ap.port)
+    assert wait_until(lambda: v.telemetry.has_local)
+    assert v.own_failsafe() is None
+    ap.texts += [(mavlink.MAV_SEVERITY_WARNING, b"Battery 1 is low 10.00V used 177 mAh"),
+                 (mavlink.MAV_SEVERITY_WARNING, b"Battery Failsafe")]
+    assert wait_until(lambda: v.own_failsafe() == "Battery Failsafe")
+    assert v.failsafe_hint() is None  # nothing on our side explains the mode it chose
+
+
+def test_a_failsafe_about_our_link_is_ours_and_a_generic_one_only_with_texts(fake, connect):
+    ap = fake(autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
+    v = connect(ap.port)
+    assert wait_until(lambda: v.telemetry.has_local)
+    ap.texts.append((mavlink.MAV_SEVERITY_WARNING, b"GCS Failsafe"))
+    assert wait_until(lambda: v.failsafe_hint() == "the autopilot said 'GCS Failsafe'")
+    assert v.own_failsafe() is None and v.failsafe_hint(texts=False) is None
 
 
 def test_the_round_trip_is_measured_and_sizes_the_link_timeout(fake, connect):

@@ -246,6 +246,6 @@ def interrupted_outcome(mission) -> str:
             return "the vehicle is disarmed on the ground; it never took off"
         return "the vehicle was never armed"
     if state is mission_mod.MissionState.HANDED_OVER:
-        return "the vehicle was handed over to its pilot"
+        return "the vehicle was handed over (to its pilot, or the autopilot's own failsafe)"
     return (f"the mission stopped in state {state.name}: the vehicle may not be on the ground and disarmed; "
             "the autopilot's failsafe owns it")

@@ -40,6 +40,11 @@ class PlanningFailed(MissionError):
     """The planner raised something other than a no-path error; the vehicle was never armed."""
 
 
+class OutsideGeofence(MissionError):
+    """The route leaves the autopilot's own geofence round home (it would return or land at the breach); the
+    vehicle was never armed."""
+
+
 class FlightAborted(MissionError):
     """A failure after takeoff; the message says what failed and whether the vehicle landed or is holding."""
 
@@ -71,7 +76,8 @@ class LandedMeanwhile(MissionError):
 
 
 class ControlTakenOver(MissionError):
-    """A pilot took the vehicle (a manual, position or altitude mode we never select); we handed it over."""
+    """Someone else has the vehicle and we handed it over: a pilot (a manual, position or altitude mode we never
+    select), or the autopilot's own failsafe or an operator (a return or landing nothing on our side explains)."""
 
 
 class LinkLostInFlight(MissionError):

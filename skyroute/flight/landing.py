@@ -65,7 +65,7 @@ class LandingMixin:
         if self.state is S.MANUAL:
             return "nothing to undo: the vehicle is disarmed and not under our control"
         if self.state is S.HANDED_OVER:
-            return "the vehicle was handed over to its pilot"
+            return "the vehicle was handed over (to its pilot, or the autopilot's own failsafe)"
         if self.state is S.FAILED:
             return ("the mission had already failed (link lost, landing or disarming failed, or the vehicle disarmed "
                     "in flight): it may still be in the air, the autopilot's failsafe owns it")

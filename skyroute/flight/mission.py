@@ -18,8 +18,10 @@ Safety: any failure after the takeoff command lands the vehicle (or holds it, if
 before the error propagates; Ctrl-C in flight lands first and re-raises KeyboardInterrupt, and so does a bug. In
 the air, a lost link is ridden out: the autopilot's failsafe owns the vehicle meanwhile; when the link comes back
 within ``link_lost_timeout_s`` the mission reads the real state, takes control back and flies on from where the
-vehicle is (replanning if it is off the path). A mode we did not ask for is taken back at once (bounded); a
-pilot's mode (manual, position, altitude) that no failsafe explains is handed over. A vehicle found landed and
+vehicle is (replanning if it is off the path). A mode we did not ask for is taken back at once (bounded) when a
+failsafe on our side explains it; it is handed over when the autopilot names a failsafe of its own (battery,
+geofence, ...), when it is a return or landing nothing on our side explains, and when it is a pilot's mode (manual,
+position, altitude) that no failsafe explains. A vehicle found landed and
 disarmed is never taken off again. One that disarms between takeoff and touchdown is not commanded any more.
 """
 
@@ -46,6 +48,7 @@ from .errors import (
     MissionError,
     NoPathFound,
     NotReady,
+    OutsideGeofence,
     PlanningFailed,
     VehicleDisarmedInFlight,
 )
@@ -60,7 +63,7 @@ __all__ = [  # the mission's vocabulary, importable from here
     "TRANSITIONS", "ArmingFailed", "ControlTakenOver", "FlightAborted", "GoalUnreachableInFlight",
     "IllegalTransition", "LandedMeanwhile",
     "LinkLostInFlight", "Mission", "MissionError", "MissionEvent", "MissionResult", "MissionState", "NoPathFound",
-    "NotReady", "PlanningFailed", "Vehicle", "VehicleDisarmedInFlight", "next_state",
+    "NotReady", "OutsideGeofence", "PlanningFailed", "Vehicle", "VehicleDisarmedInFlight", "next_state",
 ]
 log = logging.getLogger(__name__)
 E, S = MissionEvent, MissionState
@@ -131,6 +134,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         How long to wait for the vehicle to get ready and to keep asking it to arm.
     link_lost_timeout_s : float
         How long to wait for a link lost in flight to come back before leaving the vehicle to its failsafe.
+    handover_watch_s : float
+        How long to follow a vehicle handed over to the autopilot's own return or landing until it is down.
     corner_cut_m, cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps : float
         The flight path (:func:`~.path.smooth_path`), fitted within the autopilot's own limits before flight.
     lead_s, velocity_lag_s : float
@@ -157,7 +162,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                  arm_timeout_s: float = 60.0, arm_retry_s: float = 1.0,
                  takeoff_timeout_s: float = 60.0, leg_timeout_s: float = 60.0, min_speed_mps: float = 1.0,
                  landing_timeout_s: float = 120.0, disarm_timeout_s: float = 15.0,
-                 link_lost_timeout_s: float = 30.0, control_retries: int = 3, max_recoveries: int = 10,
+                 link_lost_timeout_s: float = 30.0, handover_watch_s: float = 300.0, control_retries: int = 3,
+                 max_recoveries: int = 10,
                  resume_off_path_m: float = 2.0,
                  goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, settle_s: float = 3.0,
                  trim_gain: float = 0.4, max_trim_m: float = 1.5, stuck_mps: float = 1.0, stuck_s: float = 3.0,
@@ -182,6 +188,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.takeoff_timeout_s, self.leg_timeout_s, self.min_speed_mps = takeoff_timeout_s, leg_timeout_s, min_speed_mps
         self.landing_timeout_s, self.disarm_timeout_s = landing_timeout_s, disarm_timeout_s
         self.link_lost_timeout_s, self.control_retries = link_lost_timeout_s, control_retries
+        self.handover_watch_s = handover_watch_s
         self.max_recoveries, self.resume_off_path_m = max_recoveries, resume_off_path_m
         self.goal_tolerance_m, self.stop_speed_mps, self.settle_s = goal_tolerance_m, stop_speed_mps, settle_s
         self._near_goal_since = math.nan
@@ -348,14 +355,15 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
 
         Raises
         ------
-        NotReady, ArmingFailed, NoPathFound, PlanningFailed
+        NotReady, ArmingFailed, NoPathFound, PlanningFailed, OutsideGeofence
             Before takeoff; the vehicle was never armed (or was disarmed).
         FlightAborted
             Something failed after takeoff; the vehicle landed (or holds, if landing could not be commanded).
         VehicleDisarmedInFlight
             A FlightAborted: the vehicle disarmed after takeoff and before touchdown; nothing more was commanded.
         LandedMeanwhile, ControlTakenOver
-            After an outage the vehicle had landed and disarmed; a pilot took it over.
+            After an outage the vehicle had landed and disarmed; a pilot, an operator or the autopilot's own
+            failsafe took it over.
         LinkLostInFlight
             The link stayed lost; the autopilot's failsafe owns the vehicle.
         KeyboardInterrupt, or any exception that is not a MissionError nor in ``vehicle_errors`` (a bug)
@@ -474,8 +482,25 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                               + path_length_m(waypoints) + waypoints[-1, 2])
         log.info("planned %d waypoints, %.1f m: %s", len(waypoints), r.planned_length_m,
                  " ".join(f"({n:.1f} N, {e:.1f} E, {a:.1f} m)" for n, e, a in waypoints[:, :3]))
+        self._check_fence(start, waypoints)
         self._fire(E.PLANNED)
         return waypoints
+
+    def _check_fence(self, home: LocalNED, waypoints: np.ndarray) -> None:
+        """Refuse, before arming, a route that leaves the autopilot's geofence round ``home`` (where it arms): at
+        the breach it would return or land, not fly the mission (ArduCopter SITL did, 150 m out)."""
+        fence = getattr(self.limits, "fence", None)
+        if fence is None:
+            return
+        out_m = float(np.hypot(waypoints[:, 0] - home.north_m, waypoints[:, 1] - home.east_m).max())
+        up_m = float((waypoints[:, 2] - home.altitude_m).max())
+        if out_m <= fence.radius_m and up_m <= fence.height_m:
+            return
+        self._fire(E.ABORT)
+        what = (f"{out_m:.0f} m from home, the fence allows {fence.radius_m:.0f} m" if out_m > fence.radius_m
+                else f"{up_m:.0f} m above home, the fence allows {fence.height_m:.0f} m")
+        raise OutsideGeofence(f"the route leaves the autopilot's geofence: it goes {what} ({fence.described}); "
+                              "never armed")
 
     def _arm(self) -> None:
         """Select the flight mode and arm; retry what waiting can change until the readiness deadline."""

@@ -80,7 +80,12 @@ class Vehicle(Protocol):
 
     def readiness(self) -> Readiness: ...
 
-    def failsafe_hint(self) -> str | None: ...
+    def failsafe_hint(self, *, texts: bool = True) -> str | None:
+        """Why the autopilot may have left our mode for a reason on our side (our setpoints paused, our link was
+        silent; with ``texts``, also a failsafe it announced without naming a cause of its own); None if none."""
+
+    def own_failsafe(self) -> str | None:
+        """The autopilot's words if it just announced a failsafe of its own (battery, geofence, ...); else None."""
 
     def map_offset(self, map_origin: Geodetic, ground_amsl_m: float) -> LocalNED: ...
 

@@ -3,9 +3,11 @@
 While the link is down the autopilot's failsafe owns the vehicle (PX4 holds or lands after COM_OF_LOSS_T,
 ArduCopter's GCS failsafe if enabled; the sender keeps re-sending our last setpoint without its feed-forward).
 When the link comes back within ``link_lost_timeout_s`` the mission reads the vehicle's real state: landed and
-disarmed -> say so and stop (never take off again on our own); in a pilot's mode (manual, position, altitude)
-that no failsafe explains -> hand over; otherwise take our flight mode back (bounded retries) and fly on from
-where the vehicle is, replanning if it is more than ``resume_off_path_m`` off the path.
+disarmed -> say so and stop (never take off again on our own); after a failsafe the autopilot names as its own
+(ArduCopter's "Battery Failsafe", a geofence, the estimator), in a return or landing nothing on our side explains,
+or in a pilot's mode (manual, position, altitude) that no failsafe explains -> hand over; otherwise take our flight
+mode back (bounded retries) and fly on from where the vehicle is, replanning if it is more than
+``resume_off_path_m`` off the path. The same judgement applies to a mode change while the link is up.
 """
 
 from __future__ import annotations
@@ -85,14 +87,8 @@ class RecoveryMixin:
                                       f"{p.east_m:.1f} E): not taking off again on our own")
             self._check_armed(why)
         kind = getattr(self.vehicle.mode_kind(), "value", "other")
-        if kind == "pilot":
-            explained = "our link was silent" if link_lost else self.vehicle.failsafe_hint()
-            if explained is None:
-                self._fire(E.TAKEN_OVER)
-                self._release()
-                raise ControlTakenOver(f"a pilot took over: the vehicle is in {t.mode}, a mode we never select; "
-                                       "handed over")
-            log.warning("the autopilot is in %s after a failsafe (%s); taking control back", t.mode, explained)
+        if kind != "ours":
+            self._hand_over_unless_ours(kind, link_lost)
         if self.result.recoveries > self.max_recoveries:
             self._fire(E.ABORT)
             raise _Abort(f"{why}: control lost {self.result.recoveries} times, giving up")
@@ -101,6 +97,59 @@ class RecoveryMixin:
         self._fire(E.RESUMED)
         self._say("control taken back: flying on from where the vehicle is")
         raise _Resumed()
+
+    def _hand_over_unless_ours(self, kind: str, link_lost: bool) -> None:
+        """Raise ControlTakenOver (after releasing the vehicle) unless the mode the vehicle is in is ours to take
+        back, i.e. a failsafe on our side put it there. Not ours: a failsafe the autopilot names as its own
+        (battery, geofence, ...: it chose to return, land or hold; taking control back would fly on against it),
+        a return or a landing nothing on our side explains (an operator's or the autopilot's choice; PX4 announces
+        its battery and geofence failsafes only as "Failsafe activated"), a pilot's mode nothing explains."""
+        t = self.vehicle.telemetry
+        own = self.vehicle.own_failsafe()
+        if own is not None:
+            reason = f"the autopilot's own failsafe put the vehicle in {t.mode} (it said {own!r})"
+        elif link_lost:
+            return  # our link was silent: its link-loss failsafe
+        elif kind == "return" and self.vehicle.failsafe_hint(texts=False) is None:
+            reason = (f"the vehicle went to {t.mode} and nothing on our side explains it (an operator or the "
+                      "autopilot's own failsafe sent it home or down)")
+        elif kind == "pilot" and (explained := self.vehicle.failsafe_hint()) is None:
+            reason = f"a pilot took over: the vehicle is in {t.mode}, a mode we never select"
+        else:
+            if kind == "pilot":
+                log.warning("the autopilot is in %s after a failsafe (%s); taking control back", t.mode, explained)
+            return
+        self._fire(E.TAKEN_OVER)
+        self._release()
+        reason += "; handed over, not taking control back"
+        if kind == "return":  # the autopilot brings it down: follow it there, so the log says how it ended
+            self._say(f"{reason}: following it down")
+            reason += f"; {self._follow_down()}"
+        raise ControlTakenOver(reason)
+
+    def _follow_down(self, disarm_wait_s: float = 15.0) -> str:
+        """After handing the vehicle over to a return or landing of the autopilot's: record the track until it is
+        on the ground and disarmed (the autopilot disarms after touchdown: ArduCopter at once, PX4 after
+        COM_DISARM_LAND), the link is lost, or ``handover_watch_s`` has passed; say which."""
+        deadline = self.clock() + self.handover_watch_s
+        landed_s = math.inf
+        while self.clock() < deadline:
+            self.sleep(self.poll_s)
+            if not self.vehicle.link_ok:
+                return "then the link was lost (the autopilot has the vehicle)"
+            self._sample()
+            t = self.vehicle.telemetry
+            if t.on_ground:
+                landed_s = min(landed_s, self.clock())
+                if not t.armed or self.clock() - landed_s >= disarm_wait_s:
+                    self._sample(force=True)
+                    p = self._map_position()
+                    return (f"it landed at map ({p.north_m:.1f} N, {p.east_m:.1f} E)"
+                            f"{' and disarmed' if not t.armed else ', still armed'}")
+            else:
+                landed_s = math.inf
+        mode = self.vehicle.telemetry.mode
+        return f"still in the air in {mode} after {self.handover_watch_s:g} s (the autopilot has it)"
 
     def _take_control(self, why: str) -> None:
         for attempt in range(1, self.control_retries + 1):

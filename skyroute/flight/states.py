@@ -4,9 +4,9 @@
 anything else. The flow on a real autopilot: wait for the estimator (PREFLIGHT), plan from where the vehicle is
 (PLANNING), select the flight mode and arm (ARMING), take off at once, fly, land, disarm. An outage or a lost
 mode in the air goes through RECOVERING, which resumes the flight, ends it (landed meanwhile, link gone for
-good) or hands the vehicle over to a pilot who took it (HANDED_OVER). An obstacle the map does not show on the
-path goes through REPLANNING (PATH_BLOCKED; REPLANNED flies on, GOAL_UNREACHABLE flies to the nearest reachable
-safe point and lands there).
+good) or hands the vehicle over to a pilot who took it or to the autopilot's own failsafe (HANDED_OVER). An
+obstacle the map does not show on the path goes through REPLANNING (PATH_BLOCKED; REPLANNED flies on,
+GOAL_UNREACHABLE flies to the nearest reachable safe point and lands there).
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ class MissionState(enum.Enum):
     DISARMING = "disarming"
     FAILED = "failed"  # terminal: we could not bring the vehicle back to MANUAL (link lost for good, could not
     #                     land or disarm, the vehicle disarmed before touchdown)
-    HANDED_OVER = "handed over"  # terminal: a pilot took the vehicle (a manual/position/altitude mode)
+    HANDED_OVER = "handed over"  # terminal: a pilot took the vehicle (a manual/position/altitude mode), or the
+    #                               autopilot's own failsafe or an operator sent it home or down
 
 
 class MissionEvent(enum.Enum):
@@ -47,7 +48,7 @@ class MissionEvent(enum.Enum):
     RESUMED = "resumed"  # link back and control taken back: fly on from where the vehicle is
     LINK_TIMEOUT = "link timeout"  # the link stayed lost for the link timeout: the autopilot's failsafe has it
     LANDED_MEANWHILE = "landed meanwhile"  # found landed and disarmed after an outage: never take off again
-    TAKEN_OVER = "taken over"  # a pilot flies it now
+    TAKEN_OVER = "taken over"  # a pilot flies it now, or the autopilot's own failsafe or an operator has it
     LANDED = "landed"
     LAND_FAILED = "land failed"  # landing could not be commanded or confirmed
     DISARMED = "disarmed"

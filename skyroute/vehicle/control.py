@@ -21,6 +21,7 @@ from .errors import CommandRejected, UnsupportedMode
 from .link import MavlinkLink
 from .modes import ModeKind, flight_mode, mode_kind, mode_numbers
 from .readiness import Readiness, readiness
+from .statustext import own_failsafe_text
 from .telemetry import Autopilot, Telemetry, map_offset
 
 log = logging.getLogger(__name__)
@@ -80,11 +81,12 @@ class MavlinkVehicle(MavlinkLink):
             return None
         return map_offset(t, map_origin, ground_amsl_m)
 
-    def failsafe_hint(self, window_s: float = 5.0, pause_s: float = 0.5) -> str | None:
-        """Why the autopilot may have left our mode on its own in the last ``window_s``: our setpoints paused for
-        ``pause_s`` or more (PX4 leaves OFFBOARD after COM_OF_LOSS_T), our link was silent, nothing came from the
-        autopilot for ``pause_s`` or more (a short outage: its failsafe text was lost with it), or it announced a
-        failsafe (a STATUSTEXT with "failsafe" in it). None if nothing explains it."""
+    def failsafe_hint(self, window_s: float = 5.0, pause_s: float = 0.5, *, texts: bool = True) -> str | None:
+        """Why the autopilot may have left our mode on its own in the last ``window_s``, for a reason on our side:
+        our setpoints paused for ``pause_s`` or more (PX4 leaves OFFBOARD after COM_OF_LOSS_T), our link was
+        silent, nothing came from the autopilot for ``pause_s`` or more (a short outage: its failsafe text was lost
+        with it), or (``texts``) it announced a failsafe (a STATUSTEXT with "failsafe" in it) that names no cause
+        of its own (see :meth:`own_failsafe`). None if nothing explains it."""
         pause = self.setpoint_pause_s(window_s)
         if pause >= pause_s:
             return f"our setpoints paused for {pause:.1f} s"
@@ -93,13 +95,21 @@ class MavlinkVehicle(MavlinkLink):
         gap = self.health.longest_gap_s(window_s)
         if gap >= max(pause_s, 0.9 * self._failsafe_after_s()):  # shorter than a lost link, long enough for its
             return f"we heard nothing from the autopilot for {gap:.1f} s"  # failsafe (its text lost with the link)
+        if not texts:
+            return None
         now = time.monotonic()
         for s in reversed(self.telemetry.statustexts):
             if now - s.time_s > window_s:
                 break
-            if "failsafe" in s.text.lower().replace("-", "").replace(" ", ""):
+            if "failsafe" in s.text.lower().replace("-", "").replace(" ", "") and \
+                    own_failsafe_text((s,), -math.inf) is None:
                 return f"the autopilot said {s.text!r}"
         return None
+
+    def own_failsafe(self, window_s: float = 5.0) -> str | None:
+        """The autopilot's words if, in the last ``window_s``, it announced a failsafe of its own (battery,
+        geofence, estimator, GPS, radio: :func:`~.statustext.own_failsafe_text`), not one about our link."""
+        return own_failsafe_text(self.telemetry.statustexts, time.monotonic() - window_s)
 
     def _failsafe_after_s(self) -> float:
         """How long the autopilot waits for us before its own failsafe (PX4 COM_OF_LOSS_T, ArduCopter

@@ -24,9 +24,10 @@ from dataclasses import dataclass, field
 from .telemetry import Autopilot
 
 ARDUPILOT_PARAMETERS = ("FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "GUID_TIMEOUT", "WPNAV_SPEED", "WPNAV_ACCEL",
-                        "MAV_GCS_SYSID", "SYSID_MYGCS")
+                        "MAV_GCS_SYSID", "SYSID_MYGCS", "FENCE_ENABLE", "FENCE_TYPE", "FENCE_ACTION", "FENCE_RADIUS",
+                        "FENCE_ALT_MAX", "FENCE_MARGIN")
 PX4_PARAMETERS = ("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_DLL_ACT", "COM_DL_LOSS_T", "MPC_XY_VEL_MAX",
-                  "MPC_ACC_HOR", "MPC_XY_P")
+                  "MPC_ACC_HOR", "MPC_XY_P", "GF_ACTION", "GF_MAX_HOR_DIST", "GF_MAX_VER_DIST")
 PARAMETERS = {Autopilot.ARDUPILOT: ARDUPILOT_PARAMETERS, Autopilot.PX4: PX4_PARAMETERS,
               Autopilot.GENERIC: PX4_PARAMETERS}
 
@@ -36,6 +37,8 @@ DEFAULTS = {
     "MAV_GCS_SYSID": 255.0,
     "COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 0.0, "NAV_DLL_ACT": 0.0, "COM_DL_LOSS_T": 10.0,
     "MPC_XY_VEL_MAX": 12.0, "MPC_ACC_HOR": 3.0, "MPC_XY_P": 0.95,
+    "FENCE_ENABLE": 0.0, "FENCE_TYPE": 7.0, "FENCE_ACTION": 1.0, "FENCE_RADIUS": 300.0, "FENCE_ALT_MAX": 100.0,
+    "FENCE_MARGIN": 2.0, "GF_ACTION": 2.0, "GF_MAX_HOR_DIST": 0.0, "GF_MAX_VER_DIST": 0.0,
 }
 
 _FS_GCS_ACTIONS = {1: "RTL", 2: "RTL (or continue an AUTO mission)", 3: "SmartRTL or RTL", 4: "SmartRTL or LAND",
@@ -43,9 +46,22 @@ _FS_GCS_ACTIONS = {1: "RTL", 2: "RTL (or continue an AUTO mission)", 3: "SmartRT
 _PX4_OFFBOARD_LOSS = {0: "position mode", 1: "altitude mode", 2: "manual mode", 3: "Return", 4: "Land",
                       5: "Hold", 6: "terminate", 7: "disarm"}
 _PX4_DATALINK_LOSS = {0: "nothing", 1: "Hold", 2: "Return", 3: "Land", 5: "terminate", 6: "disarm"}
+_FENCE_ACTIONS = {1: "RTL or LAND", 2: "LAND", 3: "SmartRTL, RTL or LAND", 4: "BRAKE or LAND",
+                  5: "SmartRTL or LAND"}
+_GF_ACTIONS = {2: "Hold", 3: "Return", 4: "terminate", 5: "Land"}
 _PX4_HOVERS = {5}  # Hold keeps the vehicle hovering where it is
 #: The manual modes need RC; without it PX4 descends and lands (measured for position mode on PX4 1.15 SITL).
 _PX4_MANUAL = {0, 1, 2}
+
+
+@dataclass(frozen=True)
+class Geofence:
+    """The autopilot's own fence round home: ``radius_m`` horizontally, ``height_m`` above home (``inf`` where it
+    has none), each less the autopilot's margin; ``described`` says which parameters and what it does on a breach."""
+
+    radius_m: float
+    height_m: float
+    described: str
 
 
 @dataclass(frozen=True)
@@ -60,7 +76,8 @@ class FlightLimits:
     :meth:`coast_m`. ``link_loss`` says in words what happens when our link is lost; ``leaves_flying`` is True
     when that leaves the vehicle in the air (hovering) until its battery runs out. ``response_s``: how long its
     velocity lags a new feed-forward (measured on SITL: PX4 ~0.6 s braking from 9 m/s; ArduCopter ~1 s, its GUIDED
-    shapes the target with WPNAV_ACCEL and a jerk limit; NaN when unknown).
+    shapes the target with WPNAV_ACCEL and a jerk limit; NaN when unknown). ``fence``: the autopilot's geofence
+    round home when it has one that acts (:func:`geofence`), else None.
     """
 
     cruise_mps: float = math.inf
@@ -71,6 +88,7 @@ class FlightLimits:
     link_loss: str = "unknown: the autopilot's failsafe parameters were not read"
     leaves_flying: bool = False
     response_s: float = math.nan
+    fence: Geofence | None = None
     params: dict[str, float] = field(default_factory=dict)
 
     def coast_m(self, speed_mps: float) -> float:
@@ -92,6 +110,42 @@ class FlightLimits:
             return 0.0
         a, t = self.brake_mps2, self.hold_last_s
         return a * (-t + math.sqrt(t * t + 2.0 * clear_m / a))
+
+
+def geofence(autopilot: Autopilot, params: dict[str, float]) -> Geofence | None:
+    """The autopilot's geofence round home, from its parameters; None when it has none that does more than warn.
+
+    ArduCopter: FENCE_ENABLE, FENCE_TYPE bits 1 (max altitude, FENCE_ALT_MAX) and 2 (circle, FENCE_RADIUS), less
+    FENCE_MARGIN, FENCE_ACTION 0 = report only (measured on SITL: radius 150 m, action 1: "Circle fence breached",
+    RTL). PX4: GF_MAX_HOR_DIST and GF_MAX_VER_DIST (0 = none), GF_ACTION 0 none, 1 warning. Polygon fences (a fence
+    mission) are not read.
+
+    >>> geofence(Autopilot.ARDUPILOT, {"FENCE_ENABLE": 1, "FENCE_TYPE": 2, "FENCE_RADIUS": 150}).radius_m
+    148.0
+    >>> geofence(Autopilot.PX4, {"GF_MAX_HOR_DIST": 0, "GF_MAX_VER_DIST": 0}) is None
+    True
+    """
+    def get(name: str) -> float:
+        return float(params[name]) if name in params else DEFAULTS[name]
+
+    if autopilot is Autopilot.ARDUPILOT:
+        kinds, action = int(get("FENCE_TYPE")), int(get("FENCE_ACTION"))
+        if not get("FENCE_ENABLE") or action == 0 or not kinds & 3:
+            return None
+        margin = max(get("FENCE_MARGIN"), 0.0)
+        radius = get("FENCE_RADIUS") - margin if kinds & 2 else math.inf
+        height = get("FENCE_ALT_MAX") - margin if kinds & 1 else math.inf
+        names = [n for n, bit in (("FENCE_RADIUS", 2), ("FENCE_ALT_MAX", 1)) if kinds & bit]
+        return Geofence(radius, height, f"{' and '.join(f'{n}={get(n):g} m' for n in names)}, FENCE_MARGIN="
+                                        f"{margin:g} m; a breach does {_FENCE_ACTIONS.get(action, f'action {action}')}")
+    action = int(get("GF_ACTION"))
+    radius, height = get("GF_MAX_HOR_DIST"), get("GF_MAX_VER_DIST")
+    if action in (0, 1) or not (radius > 0 or height > 0):
+        return None
+    names = [f"{n}={v:g} m" for n, v in (("GF_MAX_HOR_DIST", radius), ("GF_MAX_VER_DIST", height)) if v > 0]
+    return Geofence(radius if radius > 0 else math.inf, height if height > 0 else math.inf,
+                    f"{' and '.join(names)}; a breach does {_GF_ACTIONS.get(action, f'action {action}')} "
+                    f"(GF_ACTION={action})")
 
 
 def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: int) -> FlightLimits:
@@ -127,7 +181,7 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
             cruise_mps=get("WPNAV_SPEED") / 100.0, accel_mps2=accel, lateral_accel_mps2=0.6 * accel,
             hold_last_s=get("GUID_TIMEOUT"),
             brake_mps2=accel, link_loss=link_loss + assumed("FS_GCS_ENABLE", "GUID_TIMEOUT"), leaves_flying=flying,
-            response_s=1.0, params=dict(params))
+            response_s=1.0, fence=geofence(autopilot, params), params=dict(params))
     offboard = int(get("COM_OBL_RC_ACT"))
     datalink = int(get("NAV_DLL_ACT"))
     link_loss = (f"after {get('COM_OF_LOSS_T'):g} s without setpoints PX4 switches to "
@@ -144,4 +198,5 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
         cruise_mps=get("MPC_XY_VEL_MAX"), accel_mps2=accel, lateral_accel_mps2=0.9 * accel,
         hold_last_s=max(get("COM_OF_LOSS_T"), 1.0 / max(get("MPC_XY_P"), 0.1)), brake_mps2=accel,
         link_loss=link_loss + assumed("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_DLL_ACT"), leaves_flying=flying,
-        response_s=0.6 if autopilot is Autopilot.PX4 else math.nan, params=dict(params))
+        response_s=0.6 if autopilot is Autopilot.PX4 else math.nan, fence=geofence(autopilot, params),
+        params=dict(params))

@@ -108,3 +108,32 @@ def refusal_reason(texts: Iterable[StatusText], since_s: float, until_s: float, 
         if s.text and s.text not in distinct:
             distinct.append(s.text)
     return "; ".join(distinct[:2]) or None
+
+
+#: What an autopilot names when a failsafe of its own fires (measured on ArduCopter SITL: "Battery 1 is low 10.00V
+#: used 177 mAh", "Battery Failsafe", "Circle fence breached"; by their names, ArduCopter's radio, EKF and
+#: GPS-glitch failsafes and PX4's battery, position-loss and wind warnings) ...
+_OWN_CAUSE = re.compile(r"batt|fence|ekf|estimat|gps|radio|\brc\b|throttle|terminat|crash|vibration|compass|baro"
+                        r"|motor|parachute|dead.?reckon|flight time|wind", re.I)
+#: ... and what it names when the failsafe is about us: our setpoint stream or our link (ArduCopter "GCS Failsafe",
+#: PX4 "Connection to ground station lost", "No offboard signal").
+_OUR_CAUSE = re.compile(r"gcs|ground station|offboard|data ?link|telemetry|mavlink|\blink\b", re.I)
+
+
+def own_failsafe_text(texts: Iterable[StatusText], since_s: float, notice_severity: int = 5) -> str | None:
+    """The latest notice or worse (MAV_SEVERITY <= ``notice_severity``: ArduCopter says "Circle fence breached" as
+    a NOTICE) received since ``since_s`` in which the autopilot names a failsafe of its own (battery, geofence,
+    estimator, GPS, radio, ...), not one about our link; None if there is none. A generic "Failsafe activated"
+    names no cause and does not count.
+
+    >>> ts = [StatusText(4, "Battery 1 is low 10.00V used 177 mAh", 1.0), StatusText(4, "Battery Failsafe", 1.0),
+    ...       StatusText(4, "GCS Failsafe", 2.0), StatusText(6, "EKF3 IMU0 MAG0 in-flight yaw alignment complete", 2.1)]
+    >>> own_failsafe_text(ts, 0.5), own_failsafe_text(ts, 1.5)
+    ('Battery Failsafe', None)
+    """
+    for s in reversed(list(texts)):
+        if s.time_s < since_s:
+            break
+        if s.severity <= notice_severity and _OWN_CAUSE.search(s.text) and not _OUR_CAUSE.search(s.text):
+            return s.text
+    return None

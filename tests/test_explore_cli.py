@@ -31,3 +31,17 @@ def test_a_bad_known_map_is_refused_at_its_line(tmp_path, capsys):
     assert mp.main(["--explore", "50", "--map", str(bad), "--connection", "tcp:127.0.0.1:9"]) == 2
     err = capsys.readouterr().err
     assert "known.csv:3:" in err and err.count("\n") == 1
+
+
+def test_an_area_wider_than_the_autopilots_geofence_is_refused_before_arming(sim_start, tmp_path, capsys):
+    # the exploration may go anywhere within its radius: ArduCopter would return at the fence (measured on SITL)
+    sim = sim_start(map_path=mp.DEFAULT_MAP, autopilot="ardupilot", speedup=20.0, scale_timeouts=True,
+                    params={"FENCE_ENABLE": 1, "FENCE_RADIUS": 20})
+    code = mp.main(["--connection", f"tcp:127.0.0.1:{sim.port}", "--explore", "30", "--alt", "5", "--timeout", "5",
+                    "--log-dir", str(tmp_path / "logs")])
+    report = sim.stop()
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.startswith("error: the route leaves the autopilot's geofence: it goes 30 m from home, the fence "
+                          "allows 18 m (FENCE_RADIUS=20 m") and err.count("\n") == 1, err
+    assert report["armed_time_s"] == 0

@@ -152,7 +152,7 @@ def explore(
                 drone, make_explorer, explore_time_s=explore_time_s, altitude_m=altitude_m, map_origin=home,
                 no_path_errors=(PlanningError,), vehicle_errors=(vehicle_mod.VehicleError,),
                 surface_fn=geometry.surface_m, ground_amsl_m=ground_amsl_m, clearance_fn=clearance, progress=say,
-                arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s,
+                arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s, reach_m=radius_m,
             )
             try:
                 result = mission.run()

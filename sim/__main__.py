@@ -184,8 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="answer this MAV_CMD DENIED, e.g. NAV_TAKEOFF or MAV_CMD_NAV_LAND or 22 (repeatable)")
     g.add_argument("--battery-low", type=_ranged(0, 1e6), default=None, metavar="T",
                    help="the battery reads low T simulated seconds after start; the low-battery failsafe acts as "
-                        "its parameter says (px4 COM_LOW_BAT_ACT, default 2: land; ardupilot BATT_FS_LOW_ACT, "
-                        "default 0: warn only)")
+                        "its parameter says (ardupilot BATT_FS_LOW_ACT, default 0: warn only; px4 warns, as at "
+                        "its low level)")
     return p
 
 

@@ -22,9 +22,10 @@ ArduCopter GCS failsafe
 Low battery (the fault ``battery_low_s``)
     ArduCopter (SITL, BATT_FS_LOW_ACT 2, its battery made low in flight): "Battery 1 is low 10.00V used 177 mAh"
     and "Battery Failsafe" (both MAV_SEVERITY_WARNING), then RTL; BATT_FS_LOW_ACT 0 (the default) only warns.
-    PX4 announces the failsafes of its failsafe framework as "Failsafe activated" alone (measured on PX4 1.15 SITL
-    for a geofence breach; its cause goes in an EVENT); COM_LOW_BAT_ACT 0 only warns, 2 (SITL's default) Land,
-    3 Return. The sim's "low" is PX4's critical level, where it acts.
+    PX4 (SITL, COM_LOW_BAT_ACT 3, SIM_BAT_DRAIN 5 in OFFBOARD flight): "Low battery level" and "Failsafe
+    activated" (its failsafe framework's warning; the cause goes in an EVENT), and it stayed in OFFBOARD and flew
+    on: at the low level PX4 only warns, COM_LOW_BAT_ACT acts at the critical and emergency levels, which the sim
+    does not reach.
 
 Geofence round home
     ArduCopter (SITL, FENCE_ENABLE 1, FENCE_RADIUS 150, FENCE_ACTION 1, flying out in GUIDED): "Circle fence
@@ -52,8 +53,6 @@ OFFBOARD_LOSS_ACTIONS: dict[int, tuple[str, bool] | None] = {
 }
 #: NAV_DLL_ACT -> PX4 mode; None = motors stop.
 PX4_DATALINK_ACTIONS: dict[int, str | None] = {1: "LOITER", 2: "RTL", 3: "LAND", 5: None, 6: None}
-#: COM_LOW_BAT_ACT -> PX4 mode.
-PX4_LOW_BATTERY_ACTIONS = {2: "LAND", 3: "RTL"}
 #: BATT_FS_LOW_ACT -> ArduCopter mode; None = motors stop.
 ARDUPILOT_LOW_BATTERY_ACTIONS: dict[int, str | None] = {1: "LAND", 2: "RTL", 3: "SMART_RTL", 4: "SMART_RTL",
                                                         5: None}
@@ -150,36 +149,33 @@ class Failsafes:
         ap.enter_mode(ap.personality.modes[mode_name], user=False)
 
     def _battery(self) -> None:
-        """From ``battery_low_s`` on the battery reads low: the failsafe acts once, the first time the vehicle is
-        armed and in the air (ArduCopter warns at once)."""
+        """From ``battery_low_s`` on the battery reads low: the autopilot warns at once, and its failsafe acts once,
+        the first time the vehicle is armed and in the air (PX4's only warns at this level)."""
         ap = self.ap
         at = ap.cfg.faults.battery_low_s
         if self.battery_low == "acted" or at is None or ap.sim_time_s < at:
             return
         if not self.battery_low:
             self.battery_low = "low"
-            if not ap.is_px4:
-                ap.statustext(M.MAV_SEVERITY_WARNING, "Battery 1 is low 10.00V used 177 mAh")
+            ap.statustext(M.MAV_SEVERITY_WARNING,
+                          "Low battery level\t" if ap.is_px4 else "Battery 1 is low 10.00V used 177 mAh")
         if not (ap.armed and ap.airborne):
             return
         self.battery_low = "acted"
         if ap.is_px4:
-            action = int(ap.params["COM_LOW_BAT_ACT"])
-            ap.emit("failsafe", f"battery low -> COM_LOW_BAT_ACT {action}")
-            mode_name = PX4_LOW_BATTERY_ACTIONS.get(action)
-            if mode_name is None:
-                return
+            ap.emit("failsafe", f"battery low -> warning (COM_LOW_BAT_ACT {int(ap.params['COM_LOW_BAT_ACT'])} acts "
+                                "at the critical level)")
             ap.statustext(M.MAV_SEVERITY_WARNING, "Failsafe activated\t")
-        else:
-            action = int(ap.params["BATT_FS_LOW_ACT"])
-            ap.emit("failsafe", f"battery low -> BATT_FS_LOW_ACT {action}")
-            if action not in ARDUPILOT_LOW_BATTERY_ACTIONS:
-                return
-            ap.statustext(M.MAV_SEVERITY_WARNING, "Battery Failsafe")
-            mode_name = ARDUPILOT_LOW_BATTERY_ACTIONS[action]
-            if mode_name is None:
-                ap.cut_motors("low battery: BATT_FS_LOW_ACT terminate")
-                return
+            return
+        action = int(ap.params["BATT_FS_LOW_ACT"])
+        ap.emit("failsafe", f"battery low -> BATT_FS_LOW_ACT {action}")
+        if action not in ARDUPILOT_LOW_BATTERY_ACTIONS:
+            return
+        ap.statustext(M.MAV_SEVERITY_WARNING, "Battery Failsafe")
+        mode_name = ARDUPILOT_LOW_BATTERY_ACTIONS[action]
+        if mode_name is None:
+            ap.cut_motors("low battery: BATT_FS_LOW_ACT terminate")
+            return
         ap.enter_mode(ap.personality.modes[mode_name], user=False)
 
     def _offboard(self) -> None:

@@ -20,7 +20,7 @@ Command faults:
 Vehicle faults:
 
 * ``battery_low_s``: this many simulated seconds after start the battery reads low; the autopilot's low-battery
-  failsafe acts as its parameters say (:mod:`sim.failsafes`; by default PX4 lands, ArduCopter only warns).
+  failsafe acts as its parameters say (:mod:`sim.failsafes`; ArduCopter's default and PX4 only warn).
 """
 
 from __future__ import annotations

@@ -60,7 +60,8 @@ PX4_PARAMS: dict[str, ParamSpec] = {
     "MPC_LAND_SPEED": ParamSpec(0.7, REAL32, "landing descent rate (m/s)"),
     "MIS_TAKEOFF_ALT": ParamSpec(2.5, REAL32, "takeoff height above home when NAV_TAKEOFF param7 is NaN (m)"),
     "RTL_RETURN_ALT": ParamSpec(30.0, REAL32, "RTL climbs to this height above home first (m)"),
-    "COM_LOW_BAT_ACT": ParamSpec(2, INT32, "critical battery action (--battery-low): 0 warning, 2 land, 3 return"),
+    "COM_LOW_BAT_ACT": ParamSpec(2, INT32, "battery failsafe at the critical level: 0 warning, 2 land, 3 return "
+                                           "(--battery-low is the low level: a warning only, as on PX4)"),
     "GF_ACTION": ParamSpec(2, INT32, "geofence breach: 0 none, 1 warning, 2 hold, 3 return, 5 land (in OFFBOARD "
                                      "only \"Failsafe activated\", as measured on PX4 1.15 SITL)"),
     "GF_MAX_HOR_DIST": ParamSpec(0.0, REAL32, "geofence: the most (m) from home horizontally (0: none)"),

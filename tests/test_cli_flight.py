@@ -516,30 +516,39 @@ def test_a_second_and_third_mission_fly_on_the_same_running_sim(start_sim, tmp_p
     assert_no_failsafe(report)
 
 
-@pytest.mark.parametrize(("autopilot", "param", "said"), [
-    ("ardupilot", {"BATT_FS_LOW_ACT": 2}, "the autopilot's own failsafe put the vehicle in RTL (it said 'Battery "
-                                          "Failsafe')"),
-    ("px4", {"COM_LOW_BAT_ACT": 3}, "the vehicle went to RTL and nothing on our side explains it (an operator or "
-                                    "the autopilot's own failsafe sent it home or down)"),
-])
-def test_the_autopilots_low_battery_return_is_respected_not_fought(start_sim, tmp_path, capsys, block_map, watchdog,
-                                                                    autopilot, param, said):
-    # the battery reads low before takeoff; its failsafe acts once the vehicle is in the air: the autopilot returns
-    # home. Taking our mode back would fly the mission on against it (ArduCopter SITL, before this was fixed)
+def test_the_autopilots_low_battery_return_is_respected_not_fought(start_sim, tmp_path, capsys, block_map, watchdog):
+    # the battery reads low before takeoff; ArduCopter's failsafe (BATT_FS_LOW_ACT 2) acts once the vehicle is in
+    # the air: it returns home. Taking GUIDED back flew the mission on against it (ArduCopter SITL, before the fix)
     watchdog(90.0)
-    sim = start_sim(map_path=block_map, autopilot=autopilot, params=param,
+    sim = start_sim(map_path=block_map, autopilot="ardupilot", params={"BATT_FS_LOW_ACT": 2},
                     faults=FaultConfig(battery_low_s=12.0))
     code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)
     report = sim.stop()
-    out, err = capsys.readouterr()
+    _, err = capsys.readouterr()
     assert code == EXIT_FAILED, err
-    assert f"error: mission failed: {said}; handed over, not taking control back; it landed at map" in err
+    assert ("error: mission failed: the autopilot's own failsafe put the vehicle in RTL (it said 'Battery Failsafe'); "
+            "handed over, not taking control back; it landed at map") in err
     acted = [e["sim_time_s"] for e in report["events"] if e["kind"] == "failsafe" and "battery low" in e["text"]]
     assert len(acted) == 1
     assert not [c for c in report["commands"] if c["name"] == "MAV_CMD_DO_SET_MODE"
                 and c["sim_time_s"] > acted[0]]  # never asked for its mode back
     landed = report["landed"]
     assert distance_m(landed["lat_deg"], landed["lon_deg"], LAT0, LON0) < 2.0  # home, where the return took it
+    assert_down_and_disarmed(report)
+
+
+def test_px4s_low_battery_warning_does_not_stop_the_mission(start_sim, tmp_path, capsys, block_map, watchdog):
+    # PX4 1.15 SITL at the low level: "Low battery level", "Failsafe activated", and it stays in OFFBOARD
+    watchdog(90.0)
+    sim = start_sim(map_path=block_map, autopilot="px4", faults=FaultConfig(battery_low_s=12.0))
+    code = fly(sim, tmp_path, "--map", str(block_map), goal=GOAL_BEHIND_BLOCK)
+    report = sim.stop()
+    out, err = capsys.readouterr()
+    assert code == EXIT_OK, err
+    assert [e for e in report["events"] if e["kind"] == "failsafe" and "battery low" in e["text"]]
+    assert "control taken back" not in out
+    landed = report["landed"]
+    assert distance_m(landed["lat_deg"], landed["lon_deg"], *to_latlon(*GOAL_BEHIND_BLOCK)) < 1.0
     assert_down_and_disarmed(report)
 
 

@@ -1120,8 +1120,8 @@ def test_an_own_failsafe_is_respected_whatever_mode_it_chose(clock, mode):
 
 
 def test_a_return_nothing_on_our_side_explains_is_handed_over(clock):
-    # PX4 announces its battery and geofence failsafes only as "Failsafe activated" (measured on PX4 1.15 SITL for
-    # a geofence breach), and an operator may send the vehicle home from another ground station
+    # PX4 announces its geofence failsafe only as "Failsafe activated" (measured on PX4 1.15 SITL), and an operator
+    # may send the vehicle home from another ground station
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     clock.at(8.0, lambda: (setattr(v, "mode", "rtl"), setattr(v, "hint", "the autopilot said 'Failsafe activated'")))
     with pytest.raises(m.ControlTakenOver, match="went to rtl and nothing on our side explains it"):

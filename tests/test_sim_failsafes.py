@@ -215,17 +215,21 @@ def test_ardupilot_low_battery_warns_then_takes_batt_fs_low_act_once_airborne(si
     assert len([e for e in sim.report()["events"] if e["kind"] == "failsafe" and "battery low" in e["text"]]) == 1
 
 
-def test_px4_low_battery_announces_failsafe_activated_and_lands_by_default(sim_start, sim_connect):
-    sim = sim_start(speedup=10.0, faults={"battery_low_s": 0.0})  # COM_LOW_BAT_ACT 2 (Land): PX4 1.15 SITL's default
+def test_px4_low_battery_warns_and_stays_in_offboard(sim_start, sim_connect):
+    """PX4 1.15 SITL, COM_LOW_BAT_ACT 3, battery drained in OFFBOARD flight: "Low battery level", "Failsafe
+    activated", and it flew on in OFFBOARD (at the low level PX4 only warns)."""
+    sim = sim_start(speedup=10.0, strict=True, faults={"battery_low_s": 3.0}, params={"COM_LOW_BAT_ACT": 3})
     c = sim_connect(sim)
-    c.start_heartbeats(10.0)
     c.wait_for("HEARTBEAT")
     wait_ready(sim)
-    since = c.mark()
-    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
-    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, NAN, NAN, NAN).result == 0
-    c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", since=since, timeout_s=5)
-    assert sim.truth()["mode"] == "LAND"
+    with streaming(c, lambda: (0.0, 0.0, -5.0), hz=50.0):
+        time.sleep(0.1)
+        assert c.set_mode_px4(PX4_OFFBOARD).result == 0
+        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+        c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", timeout_s=10)
+        assert "Low battery level\t" in [m.text for m in c.of_type("STATUSTEXT")]
+        wait_sim(sim, 2.0)
+        assert sim.truth()["mode"] == "OFFBOARD" and sim.truth()["armed"]
 
 
 @pytest.mark.flight

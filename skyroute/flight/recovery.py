@@ -103,7 +103,7 @@ class RecoveryMixin:
         back, i.e. a failsafe on our side put it there. Not ours: a failsafe the autopilot names as its own
         (battery, geofence, ...: it chose to return, land or hold; taking control back would fly on against it),
         a return or a landing nothing on our side explains (an operator's or the autopilot's choice; PX4 announces
-        its battery and geofence failsafes only as "Failsafe activated"), a pilot's mode nothing explains."""
+        its geofence failsafe only as "Failsafe activated"), a pilot's mode nothing explains."""
         t = self.vehicle.telemetry
         own = self.vehicle.own_failsafe()
         if own is not None:

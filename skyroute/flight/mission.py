@@ -18,11 +18,11 @@ Safety: any failure after the takeoff command lands the vehicle (or holds it, if
 before the error propagates; Ctrl-C in flight lands first and re-raises KeyboardInterrupt, and so does a bug. In
 the air, a lost link is ridden out: the autopilot's failsafe owns the vehicle meanwhile; when the link comes back
 within ``link_lost_timeout_s`` the mission reads the real state, takes control back and flies on from where the
-vehicle is (replanning if it is off the path). A mode we did not ask for is taken back at once (bounded) when a
-failsafe on our side explains it; it is handed over when the autopilot names a failsafe of its own (battery,
-geofence, ...), when it is a return or landing nothing on our side explains, and when it is a pilot's mode (manual,
-position, altitude) that no failsafe explains. A vehicle found landed and
-disarmed is never taken off again. One that disarms between takeoff and touchdown is not commanded any more.
+vehicle is (replanning if it is off the path). A mode we did not ask for is taken back at once (bounded), unless
+it is not ours to take: a failsafe the autopilot names as its own (battery, geofence, ...), a return or landing
+nothing on our side explains, a pilot's mode (manual, position, altitude) no failsafe explains; those are handed
+over. A vehicle found landed and disarmed is never taken off again. One that disarms between takeoff and
+touchdown is not commanded any more. A route that leaves the autopilot's geofence is refused before arming.
 """
 
 from __future__ import annotations

@@ -22,6 +22,15 @@ ACM = {v: k for k, v in mavutil.mode_mapping_acm.items()}
 PX4_OFFBOARD, PX4_AUTO, PX4_LOITER = 6, 4, 3
 
 
+def _guided_takeoff(sim, c, up_m: float) -> None:
+    """ArduCopter: wait until ready, select GUIDED, arm, and take off to ``up_m`` (not waiting for it)."""
+    c.wait_for("HEARTBEAT")
+    wait_ready(sim)
+    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == 0
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, up_m).result == 0
+
+
 def _event_time(sim, kind: str, fragment: str = "") -> float:
     return [e["sim_time_s"] for e in sim.report()["events"] if e["kind"] == kind and fragment in e["text"]][-1]
 
@@ -137,11 +146,7 @@ def test_ardupilot_guided_target_moves_on_for_guid_timeout_then_stops(sim_start,
     moves along the velocity for GUID_TIMEOUT (3 s). A velocity-only target: 2 m/s for 3 s, then a stop."""
     sim = sim_start(autopilot="ardupilot", speedup=10.0)
     c = sim_connect(sim)
-    c.wait_for("HEARTBEAT")
-    wait_ready(sim)
-    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == 0
-    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
-    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 10).result == 0
+    _guided_takeoff(sim, c, 10.0)
     state = sim.wait_until(lambda s: abs(s["position"]["up_m"] - 10) < 0.05, 15)
     north0 = state["position"]["north_m"]
     if velocity_only:
@@ -165,11 +170,7 @@ def test_ardupilot_gcs_heartbeat_loss(sim_start, sim_connect, fs_gcs_enable, mod
     """FS_GCS_ENABLE 0 (default): SITL stayed GUIDED and armed; enabled: "GCS Failsafe" after FS_GCS_TIMEOUT."""
     sim = sim_start(autopilot="ardupilot", speedup=10.0, params={"FS_GCS_ENABLE": fs_gcs_enable})
     c = sim_connect(sim)  # heartbeats at 1 Hz simulated, from system 255
-    c.wait_for("HEARTBEAT")
-    wait_ready(sim)
-    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == 0
-    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
-    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 10).result == 0
+    _guided_takeoff(sim, c, 10.0)
     sim.wait_until(lambda s: abs(s["position"]["up_m"] - 10) < 0.1, 15)
     since = c.mark()
     c.stop_heartbeats()
@@ -198,12 +199,7 @@ def test_ardupilot_low_battery_warns_then_takes_batt_fs_low_act_once_airborne(si
     sim = sim_start(autopilot="ardupilot", speedup=10.0, params={"BATT_FS_LOW_ACT": batt_fs_low_act},
                     faults={"battery_low_s": 3.0})
     c = sim_connect(sim)
-    c.wait_for("HEARTBEAT")
-    wait_ready(sim)
-    assert sim.truth()["mode"] != "RTL"
-    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == 0
-    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
-    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 10).result == 0
+    _guided_takeoff(sim, c, 10.0)
     if batt_fs_low_act:
         c.wait_for("STATUSTEXT", lambda m: m.text == "Battery Failsafe", timeout_s=5)
     else:
@@ -238,11 +234,7 @@ def test_ardupilot_fence_breach_announces_and_returns_then_clears(sim_start, sim
     cleared" once back inside, the mode staying RTL. Here the altitude fence, the same way."""
     sim = sim_start(autopilot="ardupilot", speedup=10.0, params={"FENCE_ENABLE": 1, "FENCE_ALT_MAX": 6})
     c = sim_connect(sim)
-    c.wait_for("HEARTBEAT")
-    wait_ready(sim)
-    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == 0
-    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
-    assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 10).result == 0
+    _guided_takeoff(sim, c, 10.0)
     breach = c.wait_for("STATUSTEXT", lambda m: m.text == "Altitude fence breached", timeout_s=10)
     assert breach.severity == M.MAV_SEVERITY_NOTICE
     sim.wait_until(lambda s: s["mode"] == "RTL", 2)

@@ -118,6 +118,9 @@ _OWN_CAUSE = re.compile(r"batt|fence|ekf|estimat|gps|radio|\brc\b|throttle|termi
 #: ... and what it names when the failsafe is about us: our setpoint stream or our link (ArduCopter "GCS Failsafe",
 #: PX4 "Connection to ground station lost", "No offboard signal").
 _OUR_CAUSE = re.compile(r"gcs|ground station|offboard|data ?link|telemetry|mavlink|\blink\b", re.I)
+#: Arming checks name the same sensors but are no failsafe (PX4 sends "Preflight Fail: height estimate not stable"
+#: around takeoff and landing, measured on PX4 1.15 SITL).
+_ARMING_CHECK = re.compile(r"pre-?flight|pre-?arm|\barm(ing)?\b", re.I)
 
 
 def own_failsafe_text(texts: Iterable[StatusText], since_s: float, notice_severity: int = 5) -> str | None:
@@ -127,13 +130,15 @@ def own_failsafe_text(texts: Iterable[StatusText], since_s: float, notice_severi
     names no cause and does not count.
 
     >>> ts = [StatusText(4, "Battery 1 is low 10.00V used 177 mAh", 1.0), StatusText(4, "Battery Failsafe", 1.0),
-    ...       StatusText(4, "GCS Failsafe", 2.0), StatusText(6, "EKF3 IMU0 MAG0 in-flight yaw alignment complete", 2.1)]
+    ...       StatusText(4, "GCS Failsafe", 2.0), StatusText(6, "EKF3 IMU0 MAG0 in-flight yaw alignment complete", 2.1),
+    ...       StatusText(4, "Preflight Fail: height estimate not stable", 2.2)]
     >>> own_failsafe_text(ts, 0.5), own_failsafe_text(ts, 1.5)
     ('Battery Failsafe', None)
     """
     for s in reversed(list(texts)):
         if s.time_s < since_s:
             break
-        if s.severity <= notice_severity and _OWN_CAUSE.search(s.text) and not _OUR_CAUSE.search(s.text):
+        if s.severity <= notice_severity and _OWN_CAUSE.search(s.text) and not _OUR_CAUSE.search(s.text) \
+                and not _ARMING_CHECK.search(s.text):
             return s.text
     return None

@@ -1064,10 +1064,22 @@ def test_a_pilot_taking_over_is_handed_over(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     clock.at(8.0, lambda: setattr(v, "mode", "posctl"))  # position mode: we never select it
     with pytest.raises(m.ControlTakenOver, match="a pilot took over: the vehicle is in posctl") as err:
-        make_mission(v, clock, straight_plan([])).run()
+        make_mission(v, clock, straight_plan([]), pilot_grace_s=2.0).run()
+    assert 10.0 <= clock.now <= 10.2  # after the grace for a failsafe's fallback to give way
     after = v.calls[v.calls.index("release_control"):]
     assert "take_control" not in v.calls and "land" not in v.calls and after == ["release_control"]
     assert err.value.result.final_state is S.HANDED_OVER
+
+
+def test_a_pilot_mode_that_gives_way_to_ours_by_itself_is_no_pilot(clock):
+    # a 3 s outage against the sim at 5x (0.6 s on our clock, heard as no outage): PX4's offboard-loss fallback
+    # (position mode) with its "Failsafe activated" lost, and back to OFFBOARD by itself once setpoints arrive
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(8.0, lambda: setattr(v, "mode", "posctl"))
+    clock.at(8.8, lambda: setattr(v, "mode", "offboard"))
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and "take_control" not in v.calls and "release_control" in v.calls[-1:]
+    assert (S.WAYPOINT, E.CONTROL_LOST, S.RECOVERING) in result.history
 
 
 def test_a_pilot_mode_a_failsafe_explains_is_taken_back(clock):

@@ -136,6 +136,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         How long to wait for a link lost in flight to come back before leaving the vehicle to its failsafe.
     handover_watch_s : float
         How long to follow a vehicle handed over to the autopilot's own return or landing until it is down.
+    pilot_grace_s : float
+        How long a pilot's mode nothing explains is watched for a return to ours (PX4 leaves its offboard-loss
+        fallback by itself once setpoints arrive) before it is handed over.
     reach_m : float
         How far (m) from home the mission may go besides its first route (an exploration's radius): the
         autopilot's geofence must hold that too.
@@ -165,7 +168,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                  arm_timeout_s: float = 60.0, arm_retry_s: float = 1.0,
                  takeoff_timeout_s: float = 60.0, leg_timeout_s: float = 60.0, min_speed_mps: float = 1.0,
                  landing_timeout_s: float = 120.0, disarm_timeout_s: float = 15.0,
-                 link_lost_timeout_s: float = 30.0, handover_watch_s: float = 300.0, reach_m: float = 0.0,
+                 link_lost_timeout_s: float = 30.0, handover_watch_s: float = 300.0, pilot_grace_s: float = 2.0,
+                 reach_m: float = 0.0,
                  control_retries: int = 3, max_recoveries: int = 10,
                  resume_off_path_m: float = 2.0,
                  goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, settle_s: float = 3.0,
@@ -191,7 +195,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.takeoff_timeout_s, self.leg_timeout_s, self.min_speed_mps = takeoff_timeout_s, leg_timeout_s, min_speed_mps
         self.landing_timeout_s, self.disarm_timeout_s = landing_timeout_s, disarm_timeout_s
         self.link_lost_timeout_s, self.control_retries = link_lost_timeout_s, control_retries
-        self.handover_watch_s, self.reach_m = handover_watch_s, float(reach_m)
+        self.handover_watch_s, self.pilot_grace_s, self.reach_m = handover_watch_s, pilot_grace_s, float(reach_m)
         self.max_recoveries, self.resume_off_path_m = max_recoveries, resume_off_path_m
         self.goal_tolerance_m, self.stop_speed_mps, self.settle_s = goal_tolerance_m, stop_speed_mps, settle_s
         self._near_goal_since = math.nan

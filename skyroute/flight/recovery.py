@@ -92,7 +92,7 @@ class RecoveryMixin:
         if self.result.recoveries > self.max_recoveries:
             self._fire(E.ABORT)
             raise _Abort(f"{why}: control lost {self.result.recoveries} times, giving up")
-        if kind != "ours" or retake:
+        if not self.vehicle.in_control or retake:
             self._take_control(why)
         self._fire(E.RESUMED)
         self._say("control taken back: flying on from where the vehicle is")
@@ -114,6 +114,10 @@ class RecoveryMixin:
             reason = (f"the vehicle went to {t.mode} and nothing on our side explains it (an operator or the "
                       "autopilot's own failsafe sent it home or down)")
         elif kind == "pilot" and (explained := self.vehicle.failsafe_hint()) is None:
+            if self._back_by_itself():
+                log.warning("the autopilot went back to our mode from %s by itself: a failsafe's fallback (its text "
+                            "lost), not a pilot", t.mode)
+                return
             reason = f"a pilot took over: the vehicle is in {t.mode}, a mode we never select"
         else:
             if kind == "pilot":
@@ -126,6 +130,20 @@ class RecoveryMixin:
             self._say(f"{reason}: following it down")
             reason += f"; {self._follow_down()}"
         raise ControlTakenOver(reason)
+
+    def _back_by_itself(self) -> bool:
+        """Whether the vehicle returns to our mode within ``pilot_grace_s`` while our setpoints keep streaming.
+
+        PX4 leaves its offboard-loss fallback (position, altitude, manual or hold mode) for OFFBOARD as soon as
+        setpoints arrive again; when its "Failsafe activated" was lost (a short outage), that is the only sign the
+        fallback was no pilot's. A pilot's mode stays. Its heartbeat says the mode once a second."""
+        deadline = self.clock() + self.pilot_grace_s
+        while self.clock() < deadline and self.vehicle.link_ok:
+            if self.vehicle.in_control:
+                return True
+            self.sleep(self.poll_s)
+            self._sample()
+        return self.vehicle.in_control
 
     def _follow_down(self, disarm_wait_s: float = 15.0) -> str:
         """After handing the vehicle over to a return or landing of the autopilot's: record the track until it is

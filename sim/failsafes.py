@@ -93,6 +93,12 @@ class Failsafes:
             ap.statustext(M.MAV_SEVERITY_INFO if ap.is_px4 else M.MAV_SEVERITY_WARNING, text)
             ap.emit("failsafe", "ground station heartbeat back")
 
+    def _failsafe_mode(self, name: str) -> None:
+        """Enter a failsafe's mode; one the vehicle is already in goes on (ArduCopter's set_mode to the current
+        mode changes nothing: a second GCS failsafe does not restart a return's climb)."""
+        if self.ap.mode.name != name:
+            self.ap.enter_mode(self.ap.personality.modes[name], user=False)
+
     # ------------------------------------------------------------------ per step
     def step(self) -> None:
         ap = self.ap
@@ -146,7 +152,7 @@ class Failsafes:
             if action not in ARDUPILOT_FENCE_ACTIONS:
                 return
             mode_name = ARDUPILOT_FENCE_ACTIONS[action]
-        ap.enter_mode(ap.personality.modes[mode_name], user=False)
+        self._failsafe_mode(mode_name)
 
     def _battery(self) -> None:
         """From ``battery_low_s`` on the battery reads low: the autopilot warns at once, and its failsafe acts once,
@@ -176,7 +182,7 @@ class Failsafes:
         if mode_name is None:
             ap.cut_motors("low battery: BATT_FS_LOW_ACT terminate")
             return
-        ap.enter_mode(ap.personality.modes[mode_name], user=False)
+        self._failsafe_mode(mode_name)
 
     def _offboard(self) -> None:
         ap = self.ap
@@ -198,7 +204,7 @@ class Failsafes:
             ap.cut_motors("offboard loss: COM_OBL_RC_ACT terminate/disarm")
             return
         mode_name, restores = outcome
-        ap.enter_mode(ap.personality.modes[mode_name], user=False)
+        self._failsafe_mode(mode_name)
         if restores:
             self.offboard_fallback = mode_name
 
@@ -219,7 +225,7 @@ class Failsafes:
                 if mode_name is None:
                     ap.cut_motors("data link loss: NAV_DLL_ACT terminate/disarm")
                 else:
-                    ap.enter_mode(ap.personality.modes[mode_name], user=False)
+                    self._failsafe_mode(mode_name)
             return
         action = int(ap.params["FS_GCS_ENABLE"])
         if action == 0 or not (ap.armed and ap.airborne):
@@ -227,5 +233,4 @@ class Failsafes:
         self.gcs_lost = True
         ap.statustext(M.MAV_SEVERITY_WARNING, "GCS Failsafe")
         ap.emit("failsafe", f"no GCS heartbeat for FS_GCS_TIMEOUT -> FS_GCS_ENABLE {action}")
-        mode = ap.personality.modes[ARDUPILOT_GCS_ACTIONS.get(action, "RTL")]
-        ap.enter_mode(mode, user=False)
+        self._failsafe_mode(ARDUPILOT_GCS_ACTIONS.get(action, "RTL"))

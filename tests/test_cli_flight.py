@@ -537,6 +537,20 @@ def test_the_autopilots_low_battery_return_is_respected_not_fought(start_sim, tm
     assert_down_and_disarmed(report)
 
 
+def test_heartbeats_keep_pace_with_a_sped_up_autopilots_gcs_failsafe(start_sim, tmp_path, capsys, watchdog):
+    # ArduCopter's GCS failsafe (FS_GCS_ENABLE 1, FS_GCS_TIMEOUT 5 s) runs on its own clock, which SITL at
+    # --speedup 5 runs five times faster than ours: 1 Hz heartbeats on our clock arrived every 5 s of its time and
+    # tripped it (RTL) right after takeoff. The client paces them on the autopilot's clock.
+    watchdog(90.0)
+    sim = start_sim(autopilot="ardupilot", speedup=5.0, scale_timeouts=False, params={"FS_GCS_ENABLE": 1})
+    code = fly(sim, tmp_path, goal=GOAL_SHORT)
+    report = sim.stop()
+    _, err = capsys.readouterr()
+    assert code == EXIT_OK, err
+    assert_no_failsafe(report)
+    assert_down_and_disarmed(report)
+
+
 def test_px4s_low_battery_warning_does_not_stop_the_mission(start_sim, tmp_path, capsys, block_map, watchdog):
     # PX4 1.15 SITL at the low level: "Low battery level", "Failsafe activated", and it stays in OFFBOARD
     watchdog(90.0)

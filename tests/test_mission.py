@@ -22,6 +22,7 @@ from skyroute.flight.mission import MissionEvent as E
 from skyroute.flight.mission import MissionState as S
 from skyroute.frames import Geodetic, LocalNED
 from skyroute.vehicle.limits import Geofence
+from skyroute.vehicle.statustext import names_our_link
 
 ORIGIN = Geodetic(37.79248, -122.39745, 0.0)
 OFFSET = LocalNED(100.0, -50.0, 0.0)  # the autopilot's local origin is 100 m S, 50 m E of the map origin
@@ -484,8 +485,9 @@ class FakeVehicle:
         return FakeReadiness(() if self.clock.now >= self.ready_at_s else ("a global position estimate",))
 
     def failsafe_hint(self, *, texts=True):
-        said = (self.hint or "").startswith("the autopilot said")  # the text rule, as the real vehicle words it
-        return self.hint if texts or not said else None
+        # the generic-text rule, as the real vehicle words it: a text about our link counts either way
+        generic = (self.hint or "").startswith("the autopilot said") and not names_our_link(self.hint)
+        return self.hint if texts or not generic else None
 
     def own_failsafe(self):
         return self.own
@@ -1139,6 +1141,14 @@ def test_a_return_nothing_on_our_side_explains_is_handed_over(clock):
     with pytest.raises(m.ControlTakenOver, match="went to rtl and nothing on our side explains it"):
         make_mission(v, clock, straight_plan([])).run()
     assert "take_control" not in v.calls
+
+
+def test_a_return_after_a_failsafe_about_our_link_is_taken_back(clock):
+    # ArduCopter's GCS failsafe (FS_GCS_ENABLE 1): "GCS Failsafe", RTL; our heartbeats were late, not an operator
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    clock.at(8.0, lambda: (setattr(v, "mode", "rtl"), setattr(v, "hint", "the autopilot said 'GCS Failsafe'")))
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and v.calls.count("take_control") == 1
 
 
 def test_a_return_our_own_setpoint_pause_explains_is_taken_back(clock):

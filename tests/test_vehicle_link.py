@@ -485,12 +485,15 @@ def test_a_failsafe_the_autopilot_names_as_its_own_is_not_counted_as_ours(fake, 
 
 
 def test_a_failsafe_about_our_link_is_ours_and_a_generic_one_only_with_texts(fake, connect):
-    ap = fake(autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
+    ap = fake()
     v = connect(ap.port)
     assert wait_until(lambda: v.telemetry.has_local)
-    ap.texts.append((mavlink.MAV_SEVERITY_WARNING, b"GCS Failsafe"))
-    assert wait_until(lambda: v.failsafe_hint() == "the autopilot said 'GCS Failsafe'")
+    ap.texts.append((mavlink.MAV_SEVERITY_WARNING, b"Failsafe activated\t"))  # PX4's, for any cause
+    assert wait_until(lambda: v.failsafe_hint() == "the autopilot said 'Failsafe activated'")
     assert v.own_failsafe() is None and v.failsafe_hint(texts=False) is None
+    ap.texts.append((mavlink.MAV_SEVERITY_WARNING, b"GCS Failsafe"))  # ArduCopter's, about our heartbeats
+    assert wait_until(lambda: v.failsafe_hint(texts=False) == "the autopilot said 'GCS Failsafe'")
+    assert v.own_failsafe() is None
 
 
 def test_the_round_trip_is_measured_and_sizes_the_link_timeout(fake, connect):

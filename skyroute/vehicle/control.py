@@ -21,7 +21,7 @@ from .errors import CommandRejected, UnsupportedMode
 from .link import MavlinkLink
 from .modes import ModeKind, flight_mode, mode_kind, mode_numbers
 from .readiness import Readiness, readiness
-from .statustext import own_failsafe_text
+from .statustext import names_our_link, own_failsafe_text
 from .telemetry import Autopilot, Telemetry, map_offset
 
 log = logging.getLogger(__name__)
@@ -85,24 +85,25 @@ class MavlinkVehicle(MavlinkLink):
         """Why the autopilot may have left our mode on its own in the last ``window_s``, for a reason on our side:
         our setpoints paused for ``pause_s`` or more (PX4 leaves OFFBOARD after COM_OF_LOSS_T), our link was
         silent, nothing came from the autopilot for ``pause_s`` or more (a short outage: its failsafe text was lost
-        with it), or (``texts``) it announced a failsafe (a STATUSTEXT with "failsafe" in it) that names no cause
-        of its own (see :meth:`own_failsafe`). None if nothing explains it."""
+        with it), it announced a failsafe about our link ("GCS Failsafe"), or (``texts``) any failsafe that names
+        no cause of its own ("Failsafe activated"; see :meth:`own_failsafe`). None if nothing explains it."""
         pause = self.setpoint_pause_s(window_s)
         if pause >= pause_s:
             return f"our setpoints paused for {pause:.1f} s"
         if self.link_silent_within(window_s):
             return "our link was silent"
         gap = self.health.longest_gap_s(window_s)
-        if gap >= max(pause_s, 0.9 * self._failsafe_after_s()):  # shorter than a lost link, long enough for its
-            return f"we heard nothing from the autopilot for {gap:.1f} s"  # failsafe (its text lost with the link)
-        if not texts:
-            return None
+        # shorter than a lost link, long enough for its failsafe (its text lost with the link); its timeout runs on
+        # its clock, which a sped-up SITL or simulator runs faster than ours
+        if gap >= max(pause_s, 0.9 * self._failsafe_after_s() / self.autopilot_clock.rate()):
+            return f"we heard nothing from the autopilot for {gap:.1f} s"
         now = time.monotonic()
         for s in reversed(self.telemetry.statustexts):
             if now - s.time_s > window_s:
                 break
-            if "failsafe" in s.text.lower().replace("-", "").replace(" ", "") and \
-                    own_failsafe_text((s,), -math.inf) is None:
+            failsafe = "failsafe" in s.text.lower().replace("-", "").replace(" ", "")
+            if names_our_link(s.text) and s.severity <= mavlink.MAV_SEVERITY_WARNING or \
+                    texts and failsafe and own_failsafe_text((s,), -math.inf) is None:
                 return f"the autopilot said {s.text!r}"
         return None
 

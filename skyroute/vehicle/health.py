@@ -102,3 +102,45 @@ class LinkHealth:
 
     def ok(self, now_s: float | None = None) -> bool:
         return self.silent_s(now_s) <= self.timeout_s
+
+
+class AutopilotClock:
+    """How fast the autopilot's clock runs against ours: a SITL or simulator sped up N times runs its timeouts
+    (COM_OF_LOSS_T, FS_GCS_TIMEOUT) N times faster on our clock. From the autopilot's message times
+    (``time_boot_ms``) and our receive times, over the whole run since its clock last started; 1 until ``min_s``
+    of our time has passed. Thread-safe.
+
+    >>> c = AutopilotClock()
+    >>> for k in range(40): c.note(10.0 + 0.5 * k, 100.0 + 0.1 * k)  # 5 s of its time every second of ours
+    >>> round(c.rate(), 3)
+    5.0
+    >>> c.note(29.45, 104.0); round(c.rate(), 3)  # a message stamped just before the last one changes nothing
+    5.0
+    """
+
+    def __init__(self, min_s: float = 0.5):
+        self.min_s = min_s
+        self._lock = threading.Lock()
+        self._first: tuple[float, float] | None = None
+        self._last: tuple[float, float] | None = None
+
+    def note(self, autopilot_s: float, our_s: float) -> None:
+        """One message stamped ``autopilot_s`` (its time since boot) arrived at ``our_s`` (monotonic)."""
+        if not math.isfinite(autopilot_s):
+            return
+        with self._lock:
+            if self._last is not None and autopilot_s < self._last[0]:
+                if autopilot_s > self._last[0] - 1.0:
+                    return  # stamped a little earlier than the last one (another message kind): no news
+                self._first = None  # it rebooted: start again
+            if self._first is None:
+                self._first = (autopilot_s, our_s)
+            self._last = (autopilot_s, our_s)
+
+    def rate(self) -> float:
+        """Autopilot seconds per second of ours (1.0 while unknown), within [0.1, 1000]."""
+        with self._lock:
+            if self._first is None or self._last is None or self._last[1] - self._first[1] < self.min_s:
+                return 1.0
+            rate = (self._last[0] - self._first[0]) / (self._last[1] - self._first[1])
+        return min(max(rate, 0.1), 1000.0)

@@ -6,7 +6,8 @@ the flight actions. Three threads serve one link:
 - the reader decodes every message (:class:`~.transport.Transport` reconnects a closed TCP link), counts any
   message of the target autopilot as a sign of life (:class:`~.health.LinkHealth`), and translates it into the
   SI :class:`~.telemetry.Telemetry` snapshot, reassembled STATUSTEXTs, parameters, acks and round trips;
-- the sender sends our heartbeat at 1 Hz and, while we control the vehicle, the current setpoint at
+- the sender sends our heartbeat at 1 Hz of the autopilot's clock (up to 10 Hz of ours against a sped-up SITL,
+  whose GCS failsafe runs on its clock) and, while we control the vehicle, the current setpoint at
   ``setpoint_rate_hz`` (PX4 leaves OFFBOARD after COM_OF_LOSS_T without one);
 - the keeper asks for the telemetry streams and asks again for those that do not arrive
   (:class:`~.streams.StreamKeeper`), pings TIMESYNC for the round trip, and requests HOME_POSITION,
@@ -35,7 +36,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from . import limits as limits_mod
 from .commands import Commander
 from .errors import ConnectionTimeout, LinkLost, SigningRequired, TelemetryTimeout, VehicleError
-from .health import LinkHealth
+from .health import AutopilotClock, LinkHealth
 from .params import bytewise_encoding, decode_param_value, param_name
 from .sensors import SensorFeed
 from .statustext import StatusTextAssembler, refusal_reason
@@ -147,6 +148,7 @@ class MavlinkLink:
         self.us = (source_system, source_component)
         self.wanted_system = target_system
         self.health = LinkHealth(floor_s=link_floor_s)
+        self.autopilot_clock = AutopilotClock()  # a sped-up SITL's timeouts run faster on our clock
         self._t0 = time.monotonic()
         self._telemetry = Telemetry()
         self._cond = threading.Condition()  # guards _telemetry, _target, _params
@@ -403,11 +405,12 @@ class MavlinkLink:
 
     def _send_loop(self) -> None:
         period = 1.0 / self.setpoint_rate_hz
-        next_heartbeat, last_setpoint = 0.0, _NAN
+        last_heartbeat, last_setpoint = -math.inf, _NAN
         while not self._stop.is_set():
             now = time.monotonic()
-            if now >= next_heartbeat:
-                next_heartbeat = now + 1.0
+            # 1 Hz on the autopilot's clock: a sped-up SITL's GCS failsafe (FS_GCS_TIMEOUT) runs on it
+            if now - last_heartbeat >= 1.0 / min(max(self.autopilot_clock.rate(), 1.0), 10.0):
+                last_heartbeat = now
                 self._send(mavlink.MAVLink_heartbeat_message(
                     mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
             sp = self._setpoint
@@ -523,6 +526,8 @@ class MavlinkLink:
                 self.targets.handle(msg, now)
             else:
                 self._telemetry = update_telemetry(self._telemetry, msg, now)
+                if mtype in ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE"):  # stamped, from boot on
+                    self.autopilot_clock.note(msg.time_boot_ms * 1e-3, now)
             self._cond.notify_all()
         if mtype == "COMMAND_ACK":
             self.commander.on_ack(msg, src)

@@ -123,6 +123,16 @@ _OUR_CAUSE = re.compile(r"gcs|ground station|offboard|data ?link|telemetry|mavli
 _ARMING_CHECK = re.compile(r"pre-?flight|pre-?arm|\barm(ing)?\b", re.I)
 
 
+def names_our_link(text: str) -> bool:
+    """Whether a text is about our link or setpoint stream (ArduCopter "GCS Failsafe", PX4 "Connection to ground
+    station lost").
+
+    >>> names_our_link("GCS Failsafe"), names_our_link("Failsafe activated")
+    (True, False)
+    """
+    return bool(_OUR_CAUSE.search(text))
+
+
 def own_failsafe_text(texts: Iterable[StatusText], since_s: float, notice_severity: int = 5) -> str | None:
     """The latest notice or worse (MAV_SEVERITY <= ``notice_severity``: ArduCopter says "Circle fence breached" as
     a NOTICE) received since ``since_s`` in which the autopilot names a failsafe of its own (battery, geofence,

@@ -21,7 +21,7 @@ from .errors import CommandRejected, UnsupportedMode
 from .link import MavlinkLink
 from .modes import ModeKind, flight_mode, mode_kind, mode_numbers
 from .readiness import Readiness, readiness
-from .statustext import names_our_link, own_failsafe_text
+from .statustext import names_our_link, names_own_failsafe, own_failsafe_text
 from .telemetry import Autopilot, Telemetry, map_offset
 
 log = logging.getLogger(__name__)
@@ -103,7 +103,7 @@ class MavlinkVehicle(MavlinkLink):
                 break
             failsafe = "failsafe" in s.text.lower().replace("-", "").replace(" ", "")
             if names_our_link(s.text) and s.severity <= mavlink.MAV_SEVERITY_WARNING or \
-                    texts and failsafe and own_failsafe_text((s,), -math.inf) is None:
+                    texts and failsafe and not names_own_failsafe(s):
                 return f"the autopilot said {s.text!r}"
         return None
 

@@ -133,6 +133,12 @@ def names_our_link(text: str) -> bool:
     return bool(_OUR_CAUSE.search(text))
 
 
+def names_own_failsafe(s: StatusText, notice_severity: int = 5) -> bool:
+    """Whether a notice or worse names a failsafe of the autopilot's own (see :func:`own_failsafe_text`)."""
+    return (s.severity <= notice_severity and bool(_OWN_CAUSE.search(s.text)) and not _OUR_CAUSE.search(s.text)
+            and not _ARMING_CHECK.search(s.text))
+
+
 def own_failsafe_text(texts: Iterable[StatusText], since_s: float, notice_severity: int = 5) -> str | None:
     """The latest notice or worse (MAV_SEVERITY <= ``notice_severity``: ArduCopter says "Circle fence breached" as
     a NOTICE) received since ``since_s`` in which the autopilot names a failsafe of its own (battery, geofence,
@@ -148,7 +154,6 @@ def own_failsafe_text(texts: Iterable[StatusText], since_s: float, notice_severi
     for s in reversed(list(texts)):
         if s.time_s < since_s:
             break
-        if s.severity <= notice_severity and _OWN_CAUSE.search(s.text) and not _OUR_CAUSE.search(s.text) \
-                and not _ARMING_CHECK.search(s.text):
+        if names_own_failsafe(s, notice_severity):
             return s.text
     return None

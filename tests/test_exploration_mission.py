@@ -14,6 +14,7 @@ import numpy as np
 from skyroute.flight.exploration import ExplorationMission
 from skyroute.flight.mission import MissionEvent as E
 from skyroute.flight.mission import MissionState as S
+from skyroute.vehicle.sensors import RangeScan
 from tests.test_mission import OFFSET, ORIGIN, FakeClock, FakeVehicle, Refused
 
 ALT_M = 10.0
@@ -153,3 +154,47 @@ def test_the_time_budget_sends_it_home():
     assert result.completed and mission.stats.stopped == "time budget used"
     assert len(explorer.open) > 40
     assert math.dist(result.track[-1, 1:3], HOME) <= 0.5
+
+
+class ScanningVehicle(SightingVehicle):
+    """The camera fake with an obstacle sensor whose readings reach the mission a poll late: each is stamped with
+    the local position it arrived at (as the link stamps them), which is where the vehicle was a poll ago."""
+
+    def __init__(self, clock, **kwargs):
+        super().__init__(clock, **kwargs)
+        self.stamps: list[tuple[float, float, float]] = []
+        self._previous = None
+
+    def sensor_readings(self):
+        t = self.telemetry
+        previous, self._previous = self._previous, (t.north_m, t.east_m, t.down_m)
+        if previous is None:
+            return []
+        self.stamps.append(previous)
+        return [RangeScan(np.array([0.0]), math.radians(2.5), np.array([np.inf]), 0.2, 30.0, 0.0, 0.0,
+                          "OBSTACLE_DISTANCE", local_ne=previous[:2], local_down_m=previous[2])]
+
+
+class RecordingExplorer(ScriptedExplorer):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.scans: list[tuple[float, float]] = []
+
+    def add_scan(self, north_m, east_m, *rest):
+        self.scans.append((north_m, east_m))
+
+
+def test_scans_are_placed_where_they_arrived_and_low_ones_never_reach_the_map():
+    clock = FakeClock()
+    target = (HOME[0] + 25, HOME[1] + 3)
+    vehicle = ScanningVehicle(clock, targets_ne=[target], speed_mps=8.0)
+    explorer = RecordingExplorer([(HOME[0] + 25, HOME[1]), (HOME[0] + 50, HOME[1])])
+    mission, result, _ = explore(explorer, vehicle=vehicle, clock=clock)
+    assert result.completed and mission.stats.targets[0].collected
+    floor = ALT_M - mission.altitude_tolerance_m
+    high = [(n + mission._offset.north_m, e + mission._offset.east_m) for n, e, d in vehicle.stamps
+            if -(d + mission._offset.down_m) >= floor]
+    low = len(vehicle.stamps) - len(high)
+    assert low > 50, "the flight should take scans low: the takeoff and the 2 s collect at 2 m"
+    assert len(explorer.scans) == len(high) > 0 and np.allclose(explorer.scans, high, atol=1e-9)
+    assert mission.sensing.low_scans == low

@@ -67,7 +67,8 @@ def test_explores_collects_every_target_and_lands_home(sim_start, tmp_path, caps
     report = sim.stop()
     out = capsys.readouterr().out
     assert code == 0, out
-    assert "exploration complete" in out and "targets found 2, visited 2" in out
+    assert "exploration complete" in out and "targets found 2, visited 2" in out, (
+        [line for line in out.splitlines() if "target" in line or "exploration" in line], report["targets"])
     # the truth: every target visited, home, down, disarmed, nothing hit
     assert [t["visited_s"] is not None for t in report["targets"]] == [True, True], report["targets"]
     landed = report["landed"]

@@ -200,7 +200,9 @@ class ExplorationMission(Mission):
             return
         p = self._map_position()
         here = (p.north_m, p.east_m)
-        self.sensing.drain(here)
+        # placed where each reading arrived and without the low ones (taking off, collecting at 2 m): as the
+        # replanning mission feeds it, so a lagging poll or a low roof never paints the street
+        self.sensing.drain(here, self._offset_ne(), **self._low())
         if p.altitude_m > 1.0:
             self.explorer.view(*here)
         self._take_sightings()

@@ -128,12 +128,18 @@ def test_a_frontier_that_never_clears_is_abandoned_not_flown_forever():
     assert explorer.routes <= 3  # the frontier, then home
 
 
-def test_a_sighted_target_is_collected_at_2_m_for_2_s():
+def collect_one_target(vehicle_class=None, explorer_class=None):
+    """Two frontiers north of home with a target 3 m off the first: the mission, its result, vehicle, explorer."""
     clock = FakeClock()
     target = (HOME[0] + 25, HOME[1] + 3)
-    vehicle = SightingVehicle(clock, targets_ne=[target], speed_mps=8.0)
-    explorer = ScriptedExplorer([(HOME[0] + 25, HOME[1]), (HOME[0] + 50, HOME[1])])
+    vehicle = (vehicle_class or SightingVehicle)(clock, targets_ne=[target], speed_mps=8.0)
+    explorer = (explorer_class or ScriptedExplorer)([(HOME[0] + 25, HOME[1]), (HOME[0] + 50, HOME[1])])
     mission, result, _ = explore(explorer, vehicle=vehicle, clock=clock)
+    return mission, result, vehicle, explorer, target
+
+
+def test_a_sighted_target_is_collected_at_2_m_for_2_s():
+    mission, result, vehicle, explorer, target = collect_one_target()
     assert result.completed
     (t,) = mission.stats.targets
     assert t.collected and math.dist((t.north_m, t.east_m), target) < 1e-6
@@ -185,11 +191,7 @@ class RecordingExplorer(ScriptedExplorer):
 
 
 def test_scans_are_placed_where_they_arrived_and_low_ones_never_reach_the_map():
-    clock = FakeClock()
-    target = (HOME[0] + 25, HOME[1] + 3)
-    vehicle = ScanningVehicle(clock, targets_ne=[target], speed_mps=8.0)
-    explorer = RecordingExplorer([(HOME[0] + 25, HOME[1]), (HOME[0] + 50, HOME[1])])
-    mission, result, _ = explore(explorer, vehicle=vehicle, clock=clock)
+    mission, result, vehicle, explorer, _ = collect_one_target(ScanningVehicle, RecordingExplorer)
     assert result.completed and mission.stats.targets[0].collected
     floor = ALT_M - mission.altitude_tolerance_m
     high = [(n + mission._offset.north_m, e + mission._offset.east_m) for n, e, d in vehicle.stamps

@@ -444,7 +444,16 @@ class Autopilot(CommandHandlers, TaskControl):
             self.personality.autopilot, base, self.mode.custom_mode, self.system_status(), self.landed_state(),
             armable, 50 if self.armed and self.airborne else 0,
             fix_type, has_fix, olat, olon, oalt, not self.is_px4, self.sensor is not None,
+            *self.gps_accuracy(),
         )
+
+    def gps_accuracy(self) -> tuple[int, int, int, int]:
+        """GPS_RAW_INT's HDOP, VDOP (x 100) and horizontal and vertical accuracy (mm): what the real SITLs report
+        (PX4 1.15 SIH: 70, 110, 900, 900; ArduCopter 4.7: 121, 200, 300, 300), the accuracies grown by the
+        simulated ``--gps-noise`` (its standard deviation, added in quadrature), as a receiver's estimate would."""
+        eph, epv, h_m, v_m = (70, 110, 0.9, 0.9) if self.is_px4 else (121, 200, 0.3, 0.3)
+        noise = self.cfg.gps_noise_m
+        return eph, epv, int(round(1000 * math.hypot(h_m, noise))), int(round(1000 * math.hypot(v_m, noise)))
 
     def truth(self) -> dict:
         """Current true state (map frame) for tests and the report."""

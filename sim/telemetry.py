@@ -91,6 +91,11 @@ class TelemetrySnapshot:
     global_zero_until_fix: bool
     #: The obstacle sensors (horizontal and downward) are on: SYS_STATUS reports them present.
     range_sensors: bool = False
+    #: GPS_RAW_INT's accuracy: HDOP and VDOP x 100, horizontal and vertical accuracy (mm).
+    gps_eph: int = 70
+    gps_epv: int = 110
+    gps_h_acc_mm: int = 900
+    gps_v_acc_mm: int = 900
 
 
 def _deg7(value: float) -> int:
@@ -123,7 +128,8 @@ def gps_raw_int(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
     cog = _cdeg(math.atan2(s.vel_east_m_s, s.vel_north_m_s)) if vel > 0.1 else 65535
     return mavlink.MAVLink_gps_raw_int_message(
         s.time_boot_ms * 1000, s.gps_fix_type, _deg7(s.lat_deg), _deg7(s.lon_deg),
-        int(round(s.alt_m * 1000)), 80, 120, int(round(vel * 100)), cog, 14,
+        int(round(s.alt_m * 1000)), s.gps_eph, s.gps_epv, int(round(vel * 100)), cog, 14,
+        h_acc=s.gps_h_acc_mm, v_acc=s.gps_v_acc_mm,
     )
 
 

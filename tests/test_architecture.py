@@ -90,7 +90,8 @@ def test_the_vehicle_link_knows_nothing_of_planning_or_missions():
     ("numba", ("skyroute.planning.kernels", "skyroute.planning.any_angle", "skyroute.planning.grid3d")),
     ("networkx", ("skyroute.planning.graphs", "skyroute.planning.sampling")),
     ("skimage", ("skyroute.planning.graphs", "skyroute.planning.explore")),
-    ("scipy", ("skyroute.planning.graphs", "skyroute.planning.sampling", "skyroute.planning.replan")),
+    ("scipy", ("skyroute.planning.graphs", "skyroute.planning.sampling", "skyroute.planning.replan",
+               "skyroute.planning.livemap")),
     ("pymap3d", ("skyroute.frames",)),
 ])
 def test_each_third_party_dependency_has_its_owners_only(dependency, owners):

@@ -103,6 +103,7 @@ class FakeScan:
     distances_m: np.ndarray = field(default_factory=lambda: np.array([5.0]))
     max_range_m: float = 30.0
     received_s: float = 0.0
+    position_error_m: float = 0.0
 
 
 class PlacesMap:
@@ -145,15 +146,17 @@ def test_single_sectors_read_at_one_place_make_one_layer_update_and_whole_scans_
     calls = []
 
     class Map:
-        def add_scan(self, north_m, east_m, bearings, half, distances, max_range_m, error=0.0):
-            calls.append(len(bearings))
+        def add_scan(self, north_m, east_m, bearings, half, distances, max_range_m, error=0.0, position_error=0.0):
+            calls.append((len(bearings), position_error))
 
-    def sector(bearing_rad: float) -> FakeScan:
-        return FakeScan((1.0, 2.0), bearings_rad=np.array([bearing_rad]), half_width_rad=0.39)
+    def sector(bearing_rad: float, position_error_m: float = 0.6) -> FakeScan:
+        return FakeScan((1.0, 2.0), bearings_rad=np.array([bearing_rad]), half_width_rad=0.39,
+                        position_error_m=position_error_m)
 
     eight = [sector(k * 0.785) for k in range(8)]
     again = [sector(0.0)]  # the next round's first sector
+    worse = [sector(0.785, 3.0)]  # the receiver's accuracy changed: its own update
     whole = [FakeScan((1.0, 2.0), bearings_rad=np.zeros(72), half_width_rad=0.39, distances_m=np.ones(72))
              for _ in range(2)]
-    Sensing(SensingVehicle(*eight, *again, *whole), Map(), lambda: 0.0).drain((0.0, 0.0), (0.0, 0.0))
-    assert calls == [8, 1, 72, 72]
+    Sensing(SensingVehicle(*eight, *again, *worse, *whole), Map(), lambda: 0.0).drain((0.0, 0.0), (0.0, 0.0))
+    assert calls == [(8, 0.6), (1, 0.6), (1, 3.0), (72, 0.0), (72, 0.0)]

@@ -23,8 +23,8 @@ STALE = np.array([[0.0, 42.0, 15.0, 90.0, 30.0, 15.0], [0.0, -42.0, 15.0, 90.0, 
 WALL = np.array([[21.0, 0.0, 15.0, 1.0, 13.0, 15.0]])
 
 
-def _live(obstacles=STALE, **kwargs) -> tuple[LiveMap, GridMap]:
-    gm = GridMap.build(obstacles, ALT, SAFETY)
+def _live(obstacles=STALE, safety_m=SAFETY, **kwargs) -> tuple[LiveMap, GridMap]:
+    gm = GridMap.build(obstacles, ALT, safety_m)
     footprint = create_grid(obstacles, ALT, 0.0)[0]
     return LiveMap.for_grid_map(gm, footprint, **kwargs), gm
 
@@ -79,6 +79,48 @@ def test_a_new_wall_is_seen_on_the_wall_and_blocks_the_street(sectors):
     # The street is cut: no path north through it on the live grid (the map's grid still has one).
     assert not line_of_sight(live.grid, live.cell_of(0.5, 0.5), live.cell_of(40.5, 0.5))
     assert line_of_sight(gm.grid, gm.cell_of(0.5, 0.5), gm.cell_of(40.5, 0.5))
+
+
+def _fly_north_believing(live: LiveMap, truth: np.ndarray, sectors: int, until_north_m: float, error_ne,
+                         position_error_m: float) -> None:
+    """As :func:`_fly_north`, with the position estimate ``error_ne`` off the truth: the scans are measured at the
+    true position and placed at the estimate (a GPS drift, slow against a scan)."""
+    for north in np.arange(-80.0, until_north_m, 1.0):
+        true_p = (north, 0.5)
+        bearings, half, d = _scan(truth, true_p, sectors)
+        p = (true_p[0] + error_ne[0], true_p[1] + error_ne[1])
+        if sectors == 72:
+            live.add_scan(*p, bearings, half, d, 30.0, 0.0, position_error_m)
+        else:
+            for b, v in zip(bearings, d):
+                live.add_scan(*p, np.array([b]), half, np.array([v]), 30.0, 0.0, position_error_m)
+
+
+@pytest.mark.parametrize("sectors", [72, 8])
+def test_a_position_estimate_off_by_its_stated_error_reads_the_maps_buildings_as_the_maps(sectors):
+    off = (1.5, 2.0)  # 2.5 m: within 3.0 m, a 1 m receiver accuracy's (a reading's arc adds up to a metre)
+    drifted, _ = _live(safety_m=5.0)
+    _fly_north_believing(drifted, STALE, sectors, 60.0, off, 0.0)
+    assert drifted.hits.sum() > 0  # told nothing of the error: the street's own walls become new obstacles
+    live, _ = _live(safety_m=5.0)
+    _fly_north_believing(live, STALE, sectors, 60.0, off, 3.0)
+    assert live.hits.sum() == 0 and live.known.sum() > 500
+    # The new wall is still found, where the estimate puts it: 20 m short of it with 5 degree sectors; 14 m short
+    # with 45 degree ones, whose wedge, placed 2 m nearer the street's east block, has the map predict that block
+    # 25 m off, so the wall (21 m) takes the tolerance off that to count as new.
+    walled, _ = _live(safety_m=5.0)
+    _fly_north_believing(walled, np.vstack([STALE, WALL]), sectors, {72: 0.0, 8: 6.0}[sectors], off, 3.0)
+    hits = walled.hit_cells_ne()
+    assert len(hits) > 5 and _distance_to_boxes(hits - off, WALL).max() <= 2.0
+    assert not line_of_sight(walled.grid, walled.cell_of(0.5, 0.5), walled.cell_of(40.5, 0.5))
+
+
+def test_however_poor_the_stated_accuracy_a_new_obstacle_beyond_70_percent_of_the_margin_is_found():
+    pole = np.array([[10.5, 7.5, 15.0, 0.5, 0.5, 15.0]])  # 4 m from the street's east block, 4.5 m off its margin
+    live, _ = _live(safety_m=5.0)
+    _fly_north_believing(live, np.vstack([STALE, pole]), 72, 0.0, (0.0, 0.0), 10.0)  # "10 m": taken as 3.5 m
+    hits = live.hit_cells_ne()
+    assert len(hits) > 0 and _distance_to_boxes(hits, pole).max() <= 1.5
 
 
 def test_noise_and_dropout_still_find_the_wall_with_few_stray_hits():

@@ -175,3 +175,26 @@ def test_a_goal_that_becomes_unreachable_holds_lands_at_the_nearest_safe_point_a
     landed_m = _landed_from_goal_m(report, GOAL_NEAR)
     assert ring_m + 1.0 + SAFETY_M - 1.0 <= landed_m <= ring_m + 1.0 + SAFETY_M + 6.0
     assert "GOAL_UNREACHABLE" in _navlog(tmp_path) and "holding" in out
+
+
+@pytest.mark.parametrize("autopilot", ["ardupilot", "px4"])
+def test_gps_drift_does_not_turn_the_maps_own_streets_into_obstacles(start_sim, tmp_path, capsys, watchdog,
+                                                                      autopilot):
+    """The unchanged city, with the position estimate drifting 1.5 m (standard deviation, 10 s correlation) off
+    the truth and the receiver saying so (GPS_RAW_INT h_acc). The scans are placed at the estimate, so the map's
+    own buildings read up to metres off where the map has them; taking them for new obstacles closed the streets
+    (ArduPilot: "the goal cannot be reached" on an unchanged map; PX4: dozens of replans). The client takes
+    readings within three times the stated accuracy (at most 3.5 m with its 5 m margin) of the map's buildings for
+    theirs."""
+    watchdog(120.0)
+    sim = start_sim(mp.DEFAULT_MAP, autopilot=autopilot, gps_noise_m=1.5, seed=4)
+    code = _fly(sim, tmp_path)
+    report = sim.stop()
+    out, err = capsys.readouterr()
+    assert code == mp.EXIT_OK, err
+    assert not report["collisions"] and not report["crashed"]
+    assert _landed_from_goal_m(report, GOAL_NEAR) <= 4.5  # the estimate's error at touchdown: within 3 sigma
+    replans = _navlog(tmp_path).count("replan: path")
+    assert replans <= 3, out
+    print(f"\n{autopilot} with 1.5 m GPS drift: {replans} replans, landed "
+          f"{_landed_from_goal_m(report, GOAL_NEAR):.2f} m from the goal, clearance {report['min_clearance_m']:.2f} m")

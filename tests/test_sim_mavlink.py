@@ -77,6 +77,19 @@ def test_px4_identity_and_default_streams_after_boot(sim_start, sim_connect):
     assert c.wait_for("GPS_RAW_INT", since=since).fix_type == M.GPS_FIX_TYPE_3D_FIX
 
 
+@pytest.mark.parametrize("autopilot, gps_noise_m, accuracy", [
+    ("px4", 0.0, (70, 110, 900)), ("ardupilot", 0.0, (121, 200, 300)), ("ardupilot", 1.5, (121, 200, 1530))])
+def test_gps_raw_int_states_the_real_autopilots_accuracy_grown_by_the_simulated_noise(sim_start, sim_connect,
+                                                                                      autopilot, gps_noise_m,
+                                                                                      accuracy):
+    sim = sim_start(autopilot=autopilot, gps_noise_m=gps_noise_m, speedup=20.0)
+    c = sim_connect(sim)
+    wait_ready(sim)
+    assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_GPS_RAW_INT, 100_000).result == 0  # ArduPilot
+    raw = c.wait_for("GPS_RAW_INT", lambda m: m.fix_type >= M.GPS_FIX_TYPE_3D_FIX, since=c.mark())
+    assert (raw.eph, raw.epv, raw.h_acc) == accuracy and raw.v_acc == raw.h_acc
+
+
 def test_every_command_acked_to_its_sender_and_unknown_unsupported(sim_start, sim_connect):
     sim = sim_start()
     c = sim_connect(sim)

@@ -157,6 +157,15 @@ def test_gps_global_origin_and_gps_raw_int():
     raw = roundtrip(lambda e: e.gps_raw_int_encode(0, 3, 377924781, -1223974503, -150, 70, 110, 5, 12640, 10))
     t = vh.telemetry_from_gps_raw_int(vh.Telemetry(), raw, 0.0)
     assert (t.gps_fix_type, t.satellites) == (3, 10)
+    assert math.isnan(t.horizontal_accuracy_m)  # h_acc 0 (not sent): unknown
+
+
+@pytest.mark.parametrize("h_acc, metres", [(900, 0.9), (300, 0.3), (0, math.nan), (0xFFFFFFFF, math.nan)])
+def test_gps_raw_int_horizontal_accuracy_in_metres_and_unknown_as_nan(h_acc, metres):
+    raw = roundtrip(lambda e: e.gps_raw_int_encode(0, 3, 377924781, -1223974503, -150, 70, 110, 5, 12640, 10,
+                                                   h_acc=h_acc))
+    accuracy = vh.telemetry_from_gps_raw_int(vh.Telemetry(), raw, 0.0).horizontal_accuracy_m
+    assert accuracy == pytest.approx(metres, nan_ok=True)
 
 
 def test_a_zero_position_is_no_global_position():

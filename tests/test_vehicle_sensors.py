@@ -102,6 +102,14 @@ def test_feed_stamps_scans_with_the_local_position_they_arrived_at():
     assert second.local_ne is None and second.local_down_m is None
 
 
+def test_feed_stamps_scans_with_three_times_the_receivers_accuracy_as_their_position_error():
+    feed = SensorFeed()
+    feed.handle(_obstacle_distance([1000] * 72), 1.0, 0.0, (12.5, -3.0), -4.5, horizontal_accuracy_m=0.9)
+    feed.handle(_obstacle_distance([1000] * 72), 1.1, 0.0, (12.5, -3.0), -4.5)  # accuracy unknown
+    first, second = feed.drain()
+    assert first.position_error_m == pytest.approx(2.7) and second.position_error_m == 0.0
+
+
 def test_feed_places_a_scan_where_the_vehicle_was_at_the_scans_own_time():
     # the scan was taken at 3.5 s of the autopilot's clock; the latest position is from 3.2 s, flying 10 m/s north
     # and sinking 1 m/s: the scan was read 3 m further north and 0.3 m lower than that position

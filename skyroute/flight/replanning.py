@@ -53,7 +53,7 @@ class ObstacleMap(Protocol):
     """What the mission needs of the live layer and its replanner (``skyroute.planning.replan.Replanner``)."""
 
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
-                 max_range_m: float, bearing_error_rad: float = 0.0) -> object: ...
+                 max_range_m: float, bearing_error_rad: float = 0.0, position_error_m: float = 0.0) -> object: ...
 
     def check(self, position_ne: Sequence[float], waypoints_ne: np.ndarray) -> Blockage | None: ...
 
@@ -184,9 +184,9 @@ class Sensing:
 
         def flush() -> None:
             if batch:
-                sn, se, half, rng, err = batch[0][:5]
-                self.obstacles.add_scan(sn, se, np.concatenate([b[5] for b in batch]), half,
-                                        np.concatenate([b[6] for b in batch]), rng, err)
+                sn, se, half, rng, err, pos_err = batch[0][:6]
+                self.obstacles.add_scan(sn, se, np.concatenate([b[6] for b in batch]), half,
+                                        np.concatenate([b[7] for b in batch]), rng, err, pos_err)
                 batch.clear()
 
         for r in got:
@@ -199,10 +199,10 @@ class Sensing:
                 at = getattr(r, "local_ne", None)
                 sn, se = (n, e) if at is None or offset is None else (at[0] + offset[0], at[1] + offset[1])
                 key = (sn, se, float(r.half_width_rad), float(r.max_range_m),
-                       float(getattr(r, "bearing_error_rad", 0.0)))
+                       float(getattr(r, "bearing_error_rad", 0.0)), float(getattr(r, "position_error_m", 0.0)))
                 bearings = np.asarray(r.bearings_rad, float)
-                if batch and (batch[0][:5] != key or len(bearings) != 1
-                              or any(float(b[5][0]) == float(bearings[0]) for b in batch)):
+                if batch and (batch[0][:6] != key or len(bearings) != 1
+                              or any(float(b[6][0]) == float(bearings[0]) for b in batch)):
                     flush()  # a whole scan, another place, or the same sector again: its own update
                 batch.append((*key, bearings, np.asarray(r.distances_m, float)))
                 if len(bearings) != 1:

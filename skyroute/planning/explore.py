@@ -283,9 +283,9 @@ class Explorer:
 
     # the sensing step's ObstacleMap (skyroute.flight.replanning)
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
-                 max_range_m: float, bearing_error_rad: float = 0.0):
+                 max_range_m: float, bearing_error_rad: float = 0.0, position_error_m: float = 0.0):
         return self.area.live.add_scan(north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m,
-                                       bearing_error_rad)
+                                       bearing_error_rad, position_error_m)
 
     def check(self, position_ne: Sequence[float], waypoints_ne: np.ndarray):
         """The first observed obstacle (or its margin) on the remaining path, or None (:meth:`Replanner.check`)."""

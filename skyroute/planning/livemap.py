@@ -13,7 +13,14 @@ obstacle point lies on the arc at ``d``. PX4's 5 degree sectors make that arc sh
 explains most readings: the layer keeps the map's footprint grid (the obstacles at this altitude without margin)
 and computes, per sector, the distance the map predicts; a reading within ``explain_tolerance_m`` of that (or
 farther) is the map's own building and adds nothing. Only a reading clearly *shorter* than the map predicts is a
-new obstacle: its arc's cells (not already the map's footprint) get a hit. A cell hit in ``confirm_hits`` scans
+new obstacle: its arc's cells get a hit, except cells within ``explain_tolerance_m`` of the map's footprint (centre
+to centre). That second test is what survives an error in the vehicle's position estimate: looking along a street
+at a grazing angle, half a metre of sideways error moves the predicted range by metres, but the reading's point
+still lies on the building's face, displaced by the error. A scan placed at a position that may be off by more
+(``position_error_m``: three times the GPS receiver's reported accuracy) uses that as its tolerance in both tests,
+up to 70 % of the safety margin: with 1.5 m of GPS noise, the map's own buildings were read as new ones along
+every street and closed them. A new obstacle closer than the tolerance to a map building keeps at least the rest
+of the margin (the tolerance is taken off it). A cell hit in ``confirm_hits`` scans
 is an observed obstacle; one later seen free ``free_to_clear`` times more often than hit is dropped again (noise).
 
 Observed obstacle cells are inflated by the safety margin with the map's own Euclidean rule
@@ -45,6 +52,9 @@ _TWO_PI = 2.0 * math.pi
 #: Sectors this narrow (half width, rad) or narrower place an oblique reading's hit at the edge towards the
 #: nearer neighbour (:meth:`LiveMap._hit_spans`); a neighbour is nearer when it reads this much (m) shorter.
 FINE_HALF_RAD, NEIGHBOUR_MARGIN_M = math.radians(2.6), 0.5
+#: A scan's position error widens the explaining tolerance up to this share of the safety margin: a new obstacle
+#: taken for the map building it stands beside keeps the rest of the margin (3.5 m of 5 m, issue 11's clearance).
+MAX_TOLERANCE_PER_MARGIN = 0.7
 #: Offsets of the five points of a cell sampled for the map's predicted range: centre and corners.
 _SAMPLES = np.array([[0.5, 0.5], [0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0]])
 
@@ -64,6 +74,20 @@ class ScanUpdate:
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
     return (angle + math.pi) % _TWO_PI - math.pi
+
+
+def _distance_to(cells: np.ndarray) -> np.ndarray:
+    """Distance (m, float32) from each 1 m cell's centre to the nearest True cell's centre (0 on them; inf when
+    there is none).
+
+    >>> _distance_to(np.array([[False, False, False, True]])).tolist()
+    [[3.0, 2.0, 1.0, 0.0]]
+    """
+    from scipy import ndimage
+
+    if not cells.any():
+        return np.full(cells.shape, np.inf, np.float32)
+    return ndimage.distance_transform_edt(~cells).astype(np.float32)
 
 
 class LiveMap:
@@ -98,6 +122,7 @@ class LiveMap:
         self.safety_m = float(safety_m)
         self.confirm_hits, self.free_to_clear = int(confirm_hits), int(free_to_clear)
         self.explain_tolerance_m, self.arc_step_m = float(explain_tolerance_m), float(arc_step_m)
+        self._map_distance = None if self.footprint is None else _distance_to(self.footprint)
         shape = self.base.shape
         self.hit_count = np.zeros(shape, np.uint16)
         self.free_count = np.zeros(shape, np.uint16)
@@ -263,9 +288,13 @@ class LiveMap:
         return np.where(hit.any(axis=1), steps[first], np.inf)
 
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
-                 max_range_m: float, bearing_error_rad: float = 0.0) -> ScanUpdate:
+                 max_range_m: float, bearing_error_rad: float = 0.0, position_error_m: float = 0.0) -> ScanUpdate:
         """Take one scan from the sensor at map ``(north_m, east_m)`` (see the module notes); ``bearing_error_rad``:
-        how far off the sectors' bearings may be (a reading the map explains within that turn is the map's)."""
+        how far off the sectors' bearings may be (a reading the map explains within that turn is the map's);
+        ``position_error_m``: how far off the position may be (the explaining tolerance, if larger)."""
+        tolerance = self.explain_tolerance_m
+        if position_error_m > 0:  # never so far that an obstacle beside a building keeps less than 70 % of the margin
+            tolerance = max(tolerance, min(float(position_error_m), MAX_TOLERANCE_PER_MARGIN * self.safety_m))
         centres = np.asarray(bearings_rad, dtype=float) % _TWO_PI
         dist = np.asarray(distances_m, dtype=float)
         half = float(half_width_rad)
@@ -292,10 +321,10 @@ class LiveMap:
             self.map_cells_seen_free += int(self.footprint[fi, fj].sum())
         # New obstacles: readings clearly shorter than the map predicts.
         finite = np.isfinite(dist)
-        unexplained = finite & (dist < predicted - self.explain_tolerance_m)
+        unexplained = finite & (dist < predicted - tolerance)
         explained = int((finite & ~unexplained).sum())
         lo, hi = self._hit_spans(centres, half, dist, unexplained)
-        hit_cells = self._arc_cells(p, lo, hi, dist[unexplained])
+        hit_cells = self._arc_cells(p, lo, hi, dist[unexplained], tolerance)
         before = self.hits.copy()
         if len(hit_cells):
             hi, hj = hit_cells[:, 0], hit_cells[:, 1]
@@ -344,9 +373,10 @@ class LiveMap:
         lo = np.where(nearer_right, hi - 0.5 * half, lo)
         return lo, hi
 
-    def _arc_cells(self, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, dist: np.ndarray) -> np.ndarray:
-        """Unique cells (not map footprint, on the grid) on the arcs at ``dist`` between bearings ``lo`` and
-        ``hi`` (rad)."""
+    def _arc_cells(self, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, dist: np.ndarray,
+                   tolerance_m: float) -> np.ndarray:
+        """Unique cells (on the grid, not within ``tolerance_m`` of the map's footprint) on the arcs at ``dist``
+        between bearings ``lo`` and ``hi`` (rad)."""
         if len(dist) == 0:
             return np.empty((0, 2), np.int64)
         points = []
@@ -360,8 +390,8 @@ class LiveMap:
         n, m = self.shape
         on = (cells[:, 0] >= 0) & (cells[:, 0] < n) & (cells[:, 1] >= 0) & (cells[:, 1] < m)
         cells = np.unique(cells[on], axis=0)
-        if self.footprint is not None and len(cells):
-            cells = cells[~self.footprint[cells[:, 0], cells[:, 1]]]
+        if self._map_distance is not None and len(cells):
+            cells = cells[self._map_distance[cells[:, 0], cells[:, 1]] > tolerance_m]
         return cells
 
     def _reinflate(self, changed_cells: np.ndarray) -> bool:

@@ -214,10 +214,10 @@ class Replanner:
 
     # ------------------------------------------------------------------------------------------- sensing
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,
-                 max_range_m: float, bearing_error_rad: float = 0.0):
+                 max_range_m: float, bearing_error_rad: float = 0.0, position_error_m: float = 0.0):
         """Feed one scan to the live layer (:meth:`LiveMap.add_scan`)."""
         return self.live.add_scan(north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m,
-                                  bearing_error_rad)
+                                  bearing_error_rad, position_error_m)
 
     def discovered_ne(self) -> np.ndarray:
         """Map ``(north_m, east_m)`` of every observed obstacle cell's centre, ``(K, 2)``."""

@@ -521,7 +521,8 @@ class MavlinkLink:
                 self.sensors.handle(msg, now, t.heading_rad, (t.north_m, t.east_m), t.down_m,
                                     local_time_s=t.local_time_s,
                                     local_velocity_ned=(t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps),
-                                    heading_time_s=t.attitude_time_s, yaw_rate_rad_s=t.yaw_rate_rad_s)
+                                    heading_time_s=t.attitude_time_s, yaw_rate_rad_s=t.yaw_rate_rad_s,
+                                    horizontal_accuracy_m=t.horizontal_accuracy_m)
             elif mtype in TargetFeed.MESSAGES:
                 self.targets.handle(msg, now)
             else:

@@ -54,6 +54,11 @@ HEADING_BASE_ERROR_RAD, HEADING_RATE_WINDOW_S = math.radians(3.0), 0.2
 #: Carry the heading on over at most this long (s); a reading further from the heading's time keeps
 #: :data:`HEADING_LAG_RAD`.
 HEADING_MAX_CARRY_S = 0.5
+#: A scan is placed at the position estimate, which may be off by this many times the GPS receiver's reported
+#: horizontal accuracy (GPS_RAW_INT h_acc, about one standard deviation; 3: a drift beyond it is ~1 % of the time,
+#: 2 left a false replan every ~100 m with 1.5 m of drift): the live layer takes a reading that close to the map's
+#: buildings for theirs (:attr:`RangeScan.position_error_m`).
+POSITION_ERROR_PER_ACCURACY = 3.0
 
 
 @dataclass(frozen=True)
@@ -68,7 +73,8 @@ class RangeScan:
     its down coordinate (None: not known): the scan is placed there, not where the vehicle is when the mission gets
     round to it (a poll later), and a scan taken low (climbing, landing) can be told apart. ``bearing_error_rad``
     is how far the bearings may be off: 0 for a north-aligned scan, :data:`HEADING_LAG_RAD` for one turned by the
-    heading (the latest ATTITUDE lags a yawing vehicle).
+    heading (the latest ATTITUDE lags a yawing vehicle). ``position_error_m`` is how far the position it is placed
+    at may be off (m; 0 unknown): :data:`POSITION_ERROR_PER_ACCURACY` times the receiver's horizontal accuracy.
     """
 
     bearings_rad: np.ndarray
@@ -82,6 +88,7 @@ class RangeScan:
     local_ne: tuple[float, float] | None = None
     local_down_m: float | None = None
     bearing_error_rad: float = 0.0
+    position_error_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -246,8 +253,12 @@ class SensorFeed:
     def handle(self, msg, received_s: float, heading_rad: float,
                local_ne: tuple[float, float] | None = None, local_down_m: float | None = None, *,
                local_time_s: float = math.nan, local_velocity_ned: tuple[float, float, float] | None = None,
-               heading_time_s: float = math.nan, yaw_rate_rad_s: float = math.nan) -> bool:
+               heading_time_s: float = math.nan, yaw_rate_rad_s: float = math.nan,
+               horizontal_accuracy_m: float = math.nan) -> bool:
         """Translate and queue ``msg`` if it is a sensor message; True if it was one.
+
+        ``horizontal_accuracy_m``: the GPS receiver's latest horizontal accuracy (m, NaN unknown), which sets the
+        scan's ``position_error_m``.
 
         ``local_ne``, ``local_down_m``: the vehicle's latest local position (m), sampled at ``local_time_s`` (the
         autopilot's seconds since boot) and moving at ``local_velocity_ned`` (m/s). A horizontal scan is stamped
@@ -279,6 +290,9 @@ class SensorFeed:
                 if down is not None and math.isfinite(vd):
                     down += vd * dt
             reading = dataclasses.replace(reading, local_ne=(n, e), local_down_m=down)
+        if isinstance(reading, RangeScan) and horizontal_accuracy_m > 0:  # False while NaN
+            reading = dataclasses.replace(reading,
+                                          position_error_m=POSITION_ERROR_PER_ACCURACY * float(horizontal_accuracy_m))
         with self._cond:
             if isinstance(reading, HeightReading):
                 self.height = reading

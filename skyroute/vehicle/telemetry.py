@@ -70,8 +70,9 @@ class Telemetry:
     ``v*_mps``. Local (autopilot's EKF frame, NED): ``north_m``, ``east_m``, ``down_m``, ``local_v*_mps``.
     ``*_time_s`` are the autopilot's time since boot of that sample, ``*_rx_s`` our monotonic receive time.
     ``heading_rad`` is yaw from north, clockwise, ``yaw_rate_rad_s`` its rate (clockwise positive) at
-    ``attitude_time_s``. ``gps_fix_type`` is GPS_RAW_INT's GPS_FIX_TYPE (-1: never reported), ``origin`` the EKF
-    origin (GPS_GLOBAL_ORIGIN, AMSL), ``home`` HOME_POSITION (AMSL).
+    ``attitude_time_s``. ``gps_fix_type`` is GPS_RAW_INT's GPS_FIX_TYPE (-1: never reported),
+    ``horizontal_accuracy_m`` its receiver's horizontal accuracy (m, NaN unknown), ``origin`` the EKF origin
+    (GPS_GLOBAL_ORIGIN, AMSL), ``home`` HOME_POSITION (AMSL).
     """
 
     autopilot: Autopilot = Autopilot.GENERIC
@@ -111,6 +112,7 @@ class Telemetry:
     origin: Geodetic | None = None
     gps_fix_type: int = -1
     satellites: int = -1
+    horizontal_accuracy_m: float = math.nan
     statustexts: tuple[StatusText, ...] = field(default_factory=tuple)
 
     @property
@@ -254,9 +256,13 @@ def telemetry_from_gps_global_origin(t: Telemetry, msg, now_s: float) -> Telemet
 
 
 def telemetry_from_gps_raw_int(t: Telemetry, msg, now_s: float) -> Telemetry:
-    """GPS fix type (GPS_FIX_TYPE: 3 = 3D) and satellites visible (255 unknown -> -1)."""
+    """GPS fix type (GPS_FIX_TYPE: 3 = 3D), satellites visible (255 unknown -> -1) and the receiver's horizontal
+    accuracy (``h_acc``, a MAVLink 2 extension in mm; 0, UINT32_MAX or a MAVLink 1 frame: unknown -> NaN m)."""
     satellites = -1 if msg.satellites_visible == 255 else int(msg.satellites_visible)
-    return dataclasses.replace(t, gps_fix_type=int(msg.fix_type), satellites=satellites)
+    h_acc = int(getattr(msg, "h_acc", 0) or 0)
+    accuracy = h_acc / 1000.0 if 0 < h_acc < 0xFFFFFFFF else math.nan
+    return dataclasses.replace(t, gps_fix_type=int(msg.fix_type), satellites=satellites,
+                               horizontal_accuracy_m=accuracy)
 
 
 def with_statustext(t: Telemetry, entry: StatusText) -> Telemetry:

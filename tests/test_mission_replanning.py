@@ -20,7 +20,7 @@ from skyroute.planning.cspace import create_grid
 from skyroute.planning.errors import PlanningError
 from skyroute.planning.grid import GridMap
 from skyroute.planning.livemap import LiveMap
-from skyroute.planning.replan import Replanner
+from skyroute.planning.replan import GoalUnreachable, Replanner
 
 from .test_mission import OFFSET, FakeClock, FakeVehicle, make_mission
 
@@ -322,3 +322,46 @@ def test_a_refinement_that_fails_or_is_blocked_leaves_the_replanned_route(how, c
     assert _track_clearance(result.track, WALL) >= SAFETY - 1.0  # never took the straight line through the wall
     assert all(not math.isfinite(r.refine_ms) for r in result.replans)
     assert ("refining the route failed" if how == "raises" else "blocked by what was seen since") in caplog.text
+
+
+class _CutOffUntilLookedAgain(Replanner):
+    """The goal is 'cut off' at the first replan (as a hit from a drifted position estimate would cut it off); the
+    hold to look again feeds scans, after which the replan finds the way (the hits seen free again)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.refusals = 0
+        self.scans_at_refusal = None
+
+    def replan(self, position_ne):
+        if self.refusals == 0:
+            self.refusals += 1
+            self.scans_at_refusal = self.live.scans
+            raise GoalUnreachable(GOAL, (position_ne[0] + 2.0, position_ne[1]))
+        return super().replan(position_ne)
+
+
+def test_a_goal_cut_off_only_for_a_moment_is_looked_at_again_and_reached():
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    obstacles = _CutOffUntilLookedAgain(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT)
+    mission = _mission(v, clock, obstacles, calls=[])
+    result = mission.run()
+    assert result.completed and result.landing_error_m < 0.5
+    events = [e for _, e, _ in result.history]
+    assert obstacles.refusals == 1 and E.GOAL_UNREACHABLE not in events and E.REPLANNED in events
+    # it held where it stopped for the look (3 s at the sensor's 10 Hz: ~30 scans before the next replan)
+    assert obstacles.live.scans - obstacles.scans_at_refusal >= 25
+
+
+def test_a_goal_still_cut_off_after_looking_again_is_given_up(caplog):
+    clock = FakeClock()
+    ring = enclose_goal(GOAL, ring_m=8.0, height_m=30.0)
+    v = SensingVehicle(clock, np.vstack([STALE, ring]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    mission = _mission(v, clock, _obstacles(), calls=[])
+    caplog.set_level("INFO", logger="skyroute.flight")
+    with pytest.raises(m.GoalUnreachableInFlight):
+        mission.run()
+    looked = caplog.text.index("holding to look again for 3 s")
+    assert looked < caplog.text.index("holding; landing at the nearest reachable safe point")

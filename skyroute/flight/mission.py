@@ -155,6 +155,10 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         What ``obstacles.replan`` raises when the goal is blocked or cut off (with a ``fallback_ne`` attribute).
     replan_margin_m, max_replans : float, int
         The planning margin (for the braking rule); the most replans in one flight before landing where it is.
+    look_again_s : float
+        Before giving the goal up as out of reach, hold this long (autopilot seconds) while the sensor looks again,
+        then replan once more: a hit seen free again is dropped (a passing reading, a position estimate that
+        drifted), and only what is still there ends the mission short of the goal.
     clock, sleep : callables
         Injected for tests (monotonic seconds; sleep seconds).
     """
@@ -179,7 +183,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                  lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5, lead_s: float = 0.2,
                  velocity_lag_s: float = 0.15, poll_s: float = 0.02, track_interval_s: float = 0.2,
                  obstacles: ObstacleMap | None = None, replan_errors: tuple[type[BaseException], ...] = (),
-                 replan_margin_m: float = 5.0, max_replans: int = 200,
+                 replan_margin_m: float = 5.0, max_replans: int = 200, look_again_s: float = 3.0,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
         if not altitude_m > 0:
             raise ValueError(f"altitude_m must be > 0, got {altitude_m}")
@@ -209,6 +213,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.clock, self.sleep = clock, sleep
         self.sensing = Sensing(vehicle, obstacles, clock)
         self.replan_errors, self.replan_margin_m, self.max_replans = tuple(replan_errors), replan_margin_m, max_replans
+        self.look_again_s = float(look_again_s)
         self.state = MissionState.MANUAL
         self.result = MissionResult(final_state=self.state)
         self.limits: Limits | None = None

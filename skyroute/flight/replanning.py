@@ -370,7 +370,15 @@ class ReplanningMixin:
             route = (self.sensing.obstacles.replan(here) if target is None
                      else self.sensing.obstacles.route_to(here, target))
         except self.replan_errors as exc:
-            return self._goal_out_of_reach(exc, blockage, braked, p)
+            if target is not None or self.look_again_s <= 0:
+                return self._goal_out_of_reach(exc, blockage, braked, p)
+            p = self._look_again(exc, braked)
+            braked, here = True, (p.north_m, p.east_m)
+            try:
+                route = self.sensing.obstacles.replan(here)
+            except self.replan_errors as still:
+                return self._goal_out_of_reach(still, blockage, braked, p)
+            log.info("looked again: the goal can be reached after all")
         waypoints = self._flight_waypoints(route.waypoints, p)
         self._pending = ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
                                      float(route.plan_ms), math.nan, braked, waypoints)
@@ -405,6 +413,28 @@ class ReplanningMixin:
             if math.hypot(t.local_v_north_mps, t.local_v_east_mps) <= 2.0 * self.stop_speed_mps:
                 return
             self._tick()
+
+    def _look_again(self, exc: Exception, braked: bool):
+        """Stop, hold ``look_again_s`` (autopilot seconds; ours if it gives none) feeding the sensor's readings to
+        the live layer, and return the vehicle's map position."""
+        if not braked:
+            self._brake()
+        p = self._map_position()
+        self._say(f"{exc}: holding to look again for {self.look_again_s:g} s")
+        log.info("looking again before giving the goal up: %s", exc)
+        hold = self._to_local(p.north_m, p.east_m, p.altitude_m)
+        heading = float(getattr(self.vehicle.telemetry, "heading_rad", 0.0) or 0.0)
+        start, start_ours = self._autopilot_time_s(), self.clock()
+        while True:
+            now = self._autopilot_time_s()
+            waited = now - start if math.isfinite(now) and math.isfinite(start) else self.clock() - start_ours
+            if waited >= self.look_again_s or self.clock() - start_ours > 10.0 * self.look_again_s:
+                break
+            self.vehicle.goto_local(hold.north_m, hold.east_m, hold.down_m, heading, velocity_ned=None)
+            self._tick()
+            q = self._map_position()
+            self.sensing.drain((q.north_m, q.east_m), self._offset_ne(), **self._low())
+        return self._map_position()
 
     def _goal_out_of_reach(self, exc: Exception, blockage: Blockage, braked: bool, p) -> np.ndarray:
         """Hold, say so, and fly to the nearest reachable safe point (or stay here) to land there."""

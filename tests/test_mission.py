@@ -2072,3 +2072,31 @@ def test_after_an_outage_the_mode_is_judged_from_a_heartbeat_sent_after_it(clock
     result = make_mission(v, clock, straight_plan([])).run()
     assert result.completed and result.recoveries == 1
     assert v.calls.count("take_control") == 1
+
+
+def test_after_a_return_above_a_roof_it_gets_over_free_ground_before_descending(clock):
+    """The autopilot's return took the vehicle to 25 m, over a roof; the new plan starts at the nearest point free
+    at the flight altitude, 12 m off. The vehicle goes there at 25 m and descends only over it."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    outage(clock, v, 8.0, 3.0)
+
+    def carried_up():  # RTL: climbed to its return altitude and moved off the path
+        v.telemetry.east_m += 10.0
+        v.telemetry.down_m = -25.0
+
+    clock.at(9.0, carried_up)
+    planned = []
+
+    def plan(start_north_m, start_east_m):  # replans start 12 m west of the vehicle: the roof's edge plus margin
+        planned.append((start_north_m, start_east_m))
+        first = (start_north_m, start_east_m - (12.0 if len(planned) > 1 else 0.0))
+        return np.array([[*first, 10.0, 0.0], [60.0, first[1], 10.0, 0.0], [60.0, 40.0, 10.0, 0.0]])
+
+    result = make_mission(v, clock, plan, goal_ne=(60.0, 40.0)).run()
+    assert result.completed and len(planned) == 2
+    start = (planned[1][0], planned[1][1] - 12.0)
+    after = result.track[result.track[:, 0] >= 11.0]
+    low = after[after[:, 3] < 24.0]
+    first_low = low[0]
+    assert math.dist(first_low[1:3], start) <= 1.5, first_low  # it left 25 m only over the free start
+    assert result.landing_error_m < 0.3

@@ -203,6 +203,12 @@ class RecoveryMixin:
         here = np.array([[p.north_m, p.east_m, p.altitude_m, 0.0]])
         if p.altitude_m < new[0, 2] - self.altitude_tolerance_m:  # below the flight altitude: climb first
             here = np.vstack([here, [p.north_m, p.east_m, new[0, 2], 0.0]])
+        elif p.altitude_m > new[0, 2] + self.altitude_tolerance_m \
+                and math.dist(new[0, :2], (p.north_m, p.east_m)) > 0.5:
+            # Above it (an autopilot's return climbs to its RTL altitude, over roofs lower than that): the plan
+            # starts at the nearest point free at the flight altitude; get over it at this height, then descend
+            # straight down. Descending on the way there cut down into the roof the vehicle was over.
+            here = np.vstack([here, [new[0, 0], new[0, 1], p.altitude_m, 0.0]])
         path_wps = np.vstack([here, new])
         path_wps[:, 3] = leg_headings(path_wps)
         self._progress_s = 0.0

@@ -1175,6 +1175,28 @@ def test_a_route_inside_the_geofence_flies(clock):
     assert make_mission(v, clock, straight_plan([])).run().completed
 
 
+@pytest.mark.parametrize("return_m, tower_m, warned", [(15.0, 40.0, True), (60.0, 40.0, False),
+                                                      (15.0, 12.0, False)])
+def test_a_route_whose_failsafe_return_would_meet_a_taller_building_is_flown_with_a_warning(
+        clock, return_m, tower_m, warned):
+    # a tower between the route's far end and home: the line home from there crosses it (Clearance's exact test)
+    from skyroute.planning.clearance import Clearance
+
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    start = (-100.0 + OFFSET.north_m, 50.0 + OFFSET.east_m)  # where it stands on the map
+    tower = np.array([[start[0] + 55.0, start[1] + 20.0, tower_m / 2, 3.0, 3.0, tower_m / 2]])
+    v.limits.return_altitude_m, v.limits.return_described = return_m, f"RTL_ALT={100 * return_m:g} cm"
+    lines = []
+    mission = make_mission(v, clock, straight_plan([]), progress=lines.append,
+                           return_line_fn=Clearance(tower, 5.0).highest_crossed)
+    assert mission.run().completed
+    said = [line for line in lines if "autopilot's own return" in line]
+    assert bool(said) is warned
+    if warned:
+        assert f"{tower_m:.0f} m tall at map ({start[0] + 55.0:.0f} N, {start[1] + 20.0:.0f} E)" in said[0]
+        assert "RTL_ALT=1500 cm" in said[0]
+
+
 def test_control_that_cannot_be_taken_back_ends_in_a_landing(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     v.fail_on["take_control!"] = Refused("DO_SET_MODE rejected: DENIED")

@@ -329,6 +329,15 @@ def test_ardupilot_defaults_hover_on_a_lost_link_and_accelerate_at_2_5():
     assert lim.coast_m(5.0) == pytest.approx(5.0 * 3.0 + 25.0 / 5.0)
 
 
+def test_the_autopilots_return_altitude_in_metres_and_said_with_its_parameter():
+    ardu = vh.flight_limits(vh.Autopilot.ARDUPILOT, {"RTL_ALT": 2500.0}, our_system=255)
+    assert (ardu.return_altitude_m, ardu.return_described) == (25.0, "RTL_ALT=2500 cm")
+    unread = vh.flight_limits(vh.Autopilot.ARDUPILOT, {}, our_system=255)  # ArduCopter's default, said so
+    assert unread.return_altitude_m == 15.0 and "not reported" in unread.return_described
+    px4 = vh.flight_limits(vh.Autopilot.PX4, {"RTL_RETURN_ALT": 30.0}, our_system=255)
+    assert (px4.return_altitude_m, px4.return_described) == (30.0, "RTL_RETURN_ALT=30 m")
+
+
 def test_ardupilot_gcs_failsafe_counts_only_its_own_gcs_system():
     on = {"FS_GCS_ENABLE": 5.0, "FS_GCS_TIMEOUT": 5.0, "MAV_GCS_SYSID": 255.0}
     assert not vh.flight_limits(vh.Autopilot.ARDUPILOT, on, our_system=255).leaves_flying

@@ -160,6 +160,7 @@ def fly(
                 clearance_fn=clearance, progress=say,
                 arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s,
                 obstacles=obstacles, replan_errors=(PlanningError,), replan_margin_m=setting.safety_m,
+                return_line_fn=geometry.highest_crossed,
             )
             if view is not None:
                 view.follow(mission, drone)

@@ -54,7 +54,7 @@ from .errors import (
 )
 from .landing import LandingMixin
 from .path import SmoothPath, leg_headings, path_length_m, smooth_path
-from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, SurfaceFn, Vehicle
+from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, ReturnLineFn, SurfaceFn, Vehicle
 from .recovery import RecoveryMixin, _Abort, _Resumed
 from .replanning import ObstacleMap, ReplanningMixin, Sensing, _Blocked, _Rerouted
 from .states import AIRBORNE_STATES, TRANSITIONS, IllegalTransition, MissionEvent, MissionState, next_state
@@ -128,6 +128,10 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         The map's surface height (for the altitude datum, see :mod:`.preflight`), or the map ground's AMSL
         altitude given outright; the clearance along a straight line (bounds the last command, see
         :mod:`.follower`).
+    return_line_fn : optional
+        The highest building on a straight line home (:data:`~.protocol.ReturnLineFn`): before arming, a route
+        from which the autopilot's own return (straight home at its RTL altitude) would meet a building taller than
+        that altitude is flown with a warning that says so.
     progress : ProgressFn, optional
         Receives one short line at each step, and every ``progress_every_s`` while waiting or flying.
     arm_timeout_s : float
@@ -184,6 +188,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                  velocity_lag_s: float = 0.15, poll_s: float = 0.02, track_interval_s: float = 0.2,
                  obstacles: ObstacleMap | None = None, replan_errors: tuple[type[BaseException], ...] = (),
                  replan_margin_m: float = 5.0, max_replans: int = 200, look_again_s: float = 3.0,
+                 return_line_fn: ReturnLineFn | None = None,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
         if not altitude_m > 0:
             raise ValueError(f"altitude_m must be > 0, got {altitude_m}")
@@ -193,6 +198,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.vehicle_errors = tuple(vehicle_errors)
         self.goal_ne = None if goal_ne is None else (float(goal_ne[0]), float(goal_ne[1]))
         self.surface_fn, self.ground_amsl_m, self.clearance_fn = surface_fn, ground_amsl_m, clearance_fn
+        self.return_line_fn = return_line_fn
         self.progress = progress or (lambda line: None)
         self.progress_every_s = progress_every_s
         self.arm_timeout_s, self.arm_retry_s = arm_timeout_s, arm_retry_s
@@ -495,8 +501,30 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         log.info("planned %d waypoints, %.1f m: %s", len(waypoints), r.planned_length_m,
                  " ".join(f"({n:.1f} N, {e:.1f} E, {a:.1f} m)" for n, e, a in waypoints[:, :3]))
         self._check_fence(start, waypoints)
+        self._check_return(start, waypoints)
         self._fire(E.PLANNED)
         return waypoints
+
+    def _check_return(self, home: LocalNED, waypoints: np.ndarray, step_m: float = 10.0) -> None:
+        """Warn, before arming, when the autopilot's own return from somewhere on the route (straight home at its
+        RTL altitude above ``home``, or the flight altitude if higher) would meet a building taller than that: a
+        failsafe (a lost link, a low battery) would fly the vehicle into it, and only the autopilot's parameter can
+        change that (an ArduCopter at RTL_ALT 15 m set down on a 15 m roof on its way home in the sim)."""
+        altitude = float(getattr(self.limits, "return_altitude_m", math.nan))
+        if self.return_line_fn is None or not math.isfinite(altitude) or len(waypoints) == 0:
+            return
+        legs = [waypoints[:1, :2]]
+        for a, b in zip(waypoints[:-1, :2], waypoints[1:, :2]):
+            n = max(int(math.ceil(math.dist(a, b) / step_m)), 1)
+            legs.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+        top, (north, east) = self.return_line_fn(np.vstack(legs), (home.north_m, home.east_m))
+        flies_at = home.altitude_m + altitude
+        if top < max(flies_at, float(waypoints[:, 2].max())):
+            return
+        self._say(f"warning: the autopilot's own return flies straight home at {altitude:g} m above home "
+                  f"({self.limits.return_described}); from parts of this route that line meets a building "
+                  f"{top:.0f} m tall at map ({north:.0f} N, {east:.0f} E): a failsafe return from there would fly "
+                  "into it unless the return altitude is raised")
 
     def _check_fence(self, home: LocalNED, waypoints: np.ndarray) -> None:
         """Refuse, before arming, a route that leaves the autopilot's geofence round ``home`` (where it arms): at

@@ -119,5 +119,8 @@ PlanFn = Callable[[float, float], np.ndarray]
 ClearanceFn = Callable[[float, float, float, float, float, float], float]
 #: ``(north_m, east_m) -> m``: the height of the surface the map shows there (a roof, or 0 on the ground).
 SurfaceFn = Callable[[float, float], float]
+#: ``(points_ne (P, 2), home_ne) -> (top_m, (north_m, east_m))``: the highest building a straight line from any of
+#: the points to home crosses (its top above the map's ground) and where it stands; ``(0, home)`` for none.
+ReturnLineFn = Callable[[np.ndarray, tuple[float, float]], tuple[float, tuple[float, float]]]
 #: One progress line for the user.
 ProgressFn = Callable[[str], None]

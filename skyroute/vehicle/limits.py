@@ -25,9 +25,9 @@ from .telemetry import Autopilot
 
 ARDUPILOT_PARAMETERS = ("FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "GUID_TIMEOUT", "WPNAV_SPEED", "WPNAV_ACCEL",
                         "MAV_GCS_SYSID", "SYSID_MYGCS", "FENCE_ENABLE", "FENCE_TYPE", "FENCE_ACTION", "FENCE_RADIUS",
-                        "FENCE_ALT_MAX", "FENCE_MARGIN")
+                        "FENCE_ALT_MAX", "FENCE_MARGIN", "RTL_ALT")
 PX4_PARAMETERS = ("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_DLL_ACT", "COM_DL_LOSS_T", "MPC_XY_VEL_MAX",
-                  "MPC_ACC_HOR", "MPC_XY_P", "GF_ACTION", "GF_MAX_HOR_DIST", "GF_MAX_VER_DIST")
+                  "MPC_ACC_HOR", "MPC_XY_P", "GF_ACTION", "GF_MAX_HOR_DIST", "GF_MAX_VER_DIST", "RTL_RETURN_ALT")
 PARAMETERS = {Autopilot.ARDUPILOT: ARDUPILOT_PARAMETERS, Autopilot.PX4: PX4_PARAMETERS,
               Autopilot.GENERIC: PX4_PARAMETERS}
 
@@ -39,6 +39,7 @@ DEFAULTS = {
     "MPC_XY_VEL_MAX": 12.0, "MPC_ACC_HOR": 3.0, "MPC_XY_P": 0.95,
     "FENCE_ENABLE": 0.0, "FENCE_TYPE": 7.0, "FENCE_ACTION": 1.0, "FENCE_RADIUS": 300.0, "FENCE_ALT_MAX": 100.0,
     "FENCE_MARGIN": 2.0, "GF_ACTION": 2.0, "GF_MAX_HOR_DIST": 0.0, "GF_MAX_VER_DIST": 0.0,
+    "RTL_ALT": 1500.0, "RTL_RETURN_ALT": 60.0,
 }
 
 _FS_GCS_ACTIONS = {1: "RTL", 2: "RTL (or continue an AUTO mission)", 3: "SmartRTL or RTL", 4: "SmartRTL or LAND",
@@ -77,7 +78,9 @@ class FlightLimits:
     when that leaves the vehicle in the air (hovering) until its battery runs out. ``response_s``: how long its
     velocity lags a new feed-forward (measured on SITL: PX4 ~0.6 s braking from 9 m/s; ArduCopter ~1 s, its GUIDED
     shapes the target with WPNAV_ACCEL and a jerk limit; NaN when unknown). ``fence``: the autopilot's geofence
-    round home when it has one that acts (:func:`geofence`), else None.
+    round home when it has one that acts (:func:`geofence`), else None. ``return_altitude_m``: the height above
+    home at which the autopilot's return (RTL) flies home in a straight line, climbing to it first when lower
+    (ArduCopter RTL_ALT, PX4 RTL_RETURN_ALT; NaN unknown), named with its parameter in ``return_described``.
     """
 
     cruise_mps: float = math.inf
@@ -89,6 +92,8 @@ class FlightLimits:
     leaves_flying: bool = False
     response_s: float = math.nan
     fence: Geofence | None = None
+    return_altitude_m: float = math.nan
+    return_described: str = ""
     params: dict[str, float] = field(default_factory=dict)
 
     def coast_m(self, speed_mps: float) -> float:
@@ -181,7 +186,8 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
             cruise_mps=get("WPNAV_SPEED") / 100.0, accel_mps2=accel, lateral_accel_mps2=0.6 * accel,
             hold_last_s=get("GUID_TIMEOUT"),
             brake_mps2=accel, link_loss=link_loss + assumed("FS_GCS_ENABLE", "GUID_TIMEOUT"), leaves_flying=flying,
-            response_s=1.0, fence=geofence(autopilot, params), params=dict(params))
+            response_s=1.0, fence=geofence(autopilot, params), return_altitude_m=get("RTL_ALT") / 100.0,
+            return_described=f"RTL_ALT={get('RTL_ALT'):g} cm" + assumed("RTL_ALT"), params=dict(params))
     offboard = int(get("COM_OBL_RC_ACT"))
     datalink = int(get("NAV_DLL_ACT"))
     link_loss = (f"after {get('COM_OF_LOSS_T'):g} s without setpoints PX4 switches to "
@@ -199,4 +205,6 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
         hold_last_s=max(get("COM_OF_LOSS_T"), 1.0 / max(get("MPC_XY_P"), 0.1)), brake_mps2=accel,
         link_loss=link_loss + assumed("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_DLL_ACT"), leaves_flying=flying,
         response_s=0.6 if autopilot is Autopilot.PX4 else math.nan, fence=geofence(autopilot, params),
+        return_altitude_m=get("RTL_RETURN_ALT"),
+        return_described=f"RTL_RETURN_ALT={get('RTL_RETURN_ALT'):g} m" + assumed("RTL_RETURN_ALT"),
         params=dict(params))

@@ -438,16 +438,7 @@ class ExplorationMission(Mission):
             n, e = p.north_m, p.east_m
         self._say(f"target {target.number}: descending to {self.collect_altitude_m:g} m")
         self._vertical_to(n, e, self.collect_altitude_m)
-        start = self._autopilot_time_s()
-        start_ours = self.clock()
-        hold = self._to_local(n, e, self.collect_altitude_m)
-        while True:
-            now = self._autopilot_time_s()
-            elapsed = now - start if math.isfinite(now) and math.isfinite(start) else self.clock() - start_ours
-            if elapsed >= self.collect_hold_s:
-                break
-            self.vehicle.goto_local(hold.north_m, hold.east_m, hold.down_m, float(self._leg[-1, 3]))
-            self._tick()
+        self._hold(n, e, self.collect_altitude_m, float(self._leg[-1, 3]), self.collect_hold_s)
         target.collected_s = self.clock()
         self._say(f"target {target.number} collected at ({n:.1f} N, {e:.1f} E); climbing back")
         self._vertical_to(n, e, self.altitude_m)

@@ -264,6 +264,23 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         """The autopilot's time since boot (s), NaN if it does not say (flight times are in its clock)."""
         return float(getattr(self.vehicle.telemetry, "local_time_s", math.nan))
 
+    def _hold(self, north_m: float, east_m: float, altitude_m: float, heading_rad: float, seconds: float, *,
+              each: Callable[[], None] | None = None, max_ours_s: float = math.inf) -> None:
+        """Hold over the map point at ``altitude_m`` for ``seconds`` of the autopilot's time (ours if it gives
+        none), streaming the setpoint every poll and calling ``each`` after it; never longer than ``max_ours_s`` of
+        our time."""
+        target = self._to_local(north_m, east_m, altitude_m)
+        start, start_ours = self._autopilot_time_s(), self.clock()
+        while True:
+            now = self._autopilot_time_s()
+            held = now - start if math.isfinite(now) and math.isfinite(start) else self.clock() - start_ours
+            if held >= seconds or self.clock() - start_ours > max_ours_s:
+                return
+            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading_rad)
+            self._tick()
+            if each is not None:
+                each()
+
     def _sample(self, force: bool = False) -> None:
         now = self.clock()
         p = self._map_position()

@@ -422,18 +422,14 @@ class ReplanningMixin:
         p = self._map_position()
         self._say(f"{exc}: holding to look again for {self.look_again_s:g} s")
         log.info("looking again before giving the goal up: %s", exc)
-        hold = self._to_local(p.north_m, p.east_m, p.altitude_m)
         heading = float(getattr(self.vehicle.telemetry, "heading_rad", 0.0) or 0.0)
-        start, start_ours = self._autopilot_time_s(), self.clock()
-        while True:
-            now = self._autopilot_time_s()
-            waited = now - start if math.isfinite(now) and math.isfinite(start) else self.clock() - start_ours
-            if waited >= self.look_again_s or self.clock() - start_ours > 10.0 * self.look_again_s:
-                break
-            self.vehicle.goto_local(hold.north_m, hold.east_m, hold.down_m, heading, velocity_ned=None)
-            self._tick()
+
+        def sense() -> None:
             q = self._map_position()
             self.sensing.drain((q.north_m, q.east_m), self._offset_ne(), **self._low())
+
+        self._hold(p.north_m, p.east_m, p.altitude_m, heading, self.look_again_s, each=sense,
+                   max_ours_s=10.0 * self.look_again_s)
         return self._map_position()
 
     def _goal_out_of_reach(self, exc: Exception, blockage: Blockage, braked: bool, p) -> np.ndarray:

@@ -243,9 +243,11 @@ def test_a_replanned_route_is_refined_once_and_the_refined_route_is_flown():
     result = _mission(v, clock, obstacles, calls=[]).run()
     assert result.completed and result.landing_error_m < 0.5
     assert len(obstacles.asked) == len(result.replans) >= 1
-    # asked with the replanned route, from where the vehicle was one poll later
+    # asked with the replanned route from where the vehicle turns onto it: the end of the lead-in it flies straight
+    # on (north, as it was flying) to slow down for the turn into the side street, within its braking distance
     position, current = obstacles.asked[0]
-    assert math.dist(position, (result.replans[0].north_m, result.replans[0].east_m)) < 2.0
+    replanned_at = (result.replans[0].north_m, result.replans[0].east_m)
+    assert abs(position[1] - replanned_at[1]) < 0.5 and 0.0 <= position[0] - replanned_at[0] < 7.0
     assert tuple(current[0]) == position and np.allclose(current[-1], GOAL)
     track = result.track[:, 1:3]
     assert np.hypot(*(track - obstacles.via).T).min() < 3.0  # flew the refined route, by the other side
@@ -365,3 +367,37 @@ def test_a_goal_still_cut_off_after_looking_again_is_given_up(caplog):
         mission.run()
     looked = caplog.text.index("holding to look again for 3 s")
     assert looked < caplog.text.index("holding; landing at the nearest reachable safe point")
+
+
+def _without_prior():
+    """The real replanner with its stale-map prior off: a replanned route is flown as planned."""
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    return Replanner(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT, suspect_weight=1.0)
+
+
+def test_a_new_route_turning_sharply_from_the_motion_starts_with_a_straight_lead_in():
+    """At 5 m/s up the street, the route round the wall turns into the side street: the vehicle cannot turn on the
+    spot, so the new route first runs straight on (the way it flies) for the braking it needs, then turns."""
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    result = _mission(v, clock, _without_prior(), calls=[]).run()
+    assert result.completed and result.landing_error_m < 0.5
+    first = result.replans[0]
+    assert not first.braked
+    lead, after = first.waypoints[1, :2] - first.waypoints[0, :2], first.waypoints[2, :2] - first.waypoints[1, :2]
+    assert 3.0 < lead[0] < 7.0 and abs(lead[1]) < 0.5  # straight on, north, about the braking from 5 m/s
+    assert abs(after[1]) > abs(after[0])  # then into the side street
+    assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
+
+
+def test_a_sharp_turn_without_a_free_lead_in_brakes_first(monkeypatch, caplog):
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    obstacles = _without_prior()
+    monkeypatch.setattr(obstacles, "segment_free", lambda a, b: False)
+    with caplog.at_level("INFO"):
+        result = _mission(v, clock, obstacles, calls=[]).run()
+    assert result.completed and result.landing_error_m < 0.5
+    first = result.replans[0]
+    assert first.braked and "not free: braking first" in caplog.text
+    assert first.waypoints[0, :2] == pytest.approx((first.north_m, first.east_m))

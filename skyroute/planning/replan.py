@@ -38,7 +38,7 @@ from skyroute.planning import any_angle
 from skyroute.planning.cspace import nearest_free_cell, snap_start_cell
 from skyroute.planning.errors import NoPathError, PlanningError
 from skyroute.planning.livemap import LiveMap
-from skyroute.planning.pruning import headings_along, path_length, prune_path
+from skyroute.planning.pruning import headings_along, line_of_sight, path_length, prune_path
 from skyroute.planning.search import GridPlanner, load_weighted_search
 
 METHODS = ("grid", "any-angle")
@@ -234,6 +234,18 @@ class Replanner:
         """How far the horizontal ray from the point along the unit direction runs through space the sensor has
         seen free, up to ``max_m`` (m): beyond it a new obstacle could stand unseen (:meth:`LiveMap.seen_free_m`)."""
         return self.live.seen_free_m(north_m, east_m, direction_north, direction_east, max_m)
+
+    def segment_free(self, a_ne: Sequence[float], b_ne: Sequence[float]) -> bool:
+        """True if the straight leg between two map points touches only free cells of the live grid (the map's
+        buildings and the observed obstacles, each with its margin; the grid's line-of-sight rule).
+
+        >>> live = LiveMap(np.zeros((30, 30), bool), None, 0, 0, safety_m=2.0, confirm_hits=1)
+        >>> _ = live.add_scan(5.5, 15.5, np.radians([0.0]), np.radians(1.0), np.array([10.0]), 30.0)
+        >>> r = Replanner(live, (28.5, 15.5), 5.0)
+        >>> r.segment_free((5.5, 15.5), (10.5, 15.5)), r.segment_free((5.5, 15.5), (20.5, 15.5))
+        (True, False)
+        """
+        return line_of_sight(self.live.grid, self.live.cell_of(*a_ne[:2]), self.live.cell_of(*b_ne[:2]))
 
     # ---------------------------------------------------------------------------------------- replanning
     def _grid_planner(self) -> GridPlanner:

@@ -1197,6 +1197,21 @@ def test_a_route_whose_failsafe_return_would_meet_a_taller_building_is_flown_wit
         assert "RTL_ALT=1500 cm" in said[0]
 
 
+@pytest.mark.parametrize("accuracy_m, warned", [(0.3, False), (0.9, False), (1.53, True), (float("nan"), False)])
+def test_a_gps_accuracy_that_eats_most_of_the_margin_is_flown_with_a_warning(clock, accuracy_m, warned):
+    """The autopilot flies its estimate along the route: three times the stated accuracy (the real SITLs state
+    0.3 m and 0.9 m) may separate the vehicle from it, and beyond 70 % of the margin the mission says so."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.telemetry.horizontal_accuracy_m = accuracy_m
+    lines = []
+    mission = make_mission(v, clock, straight_plan([]), progress=lines.append, replan_margin_m=5.0)
+    assert mission.run().completed
+    said = [line for line in lines if "horizontal accuracy" in line]
+    assert bool(said) is warned
+    if warned:
+        assert "the vehicle itself may be 4.6 m off it" in said[0] and "--safety of 6.6 m or more" in said[0]
+
+
 def test_control_that_cannot_be_taken_back_ends_in_a_landing(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     v.fail_on["take_control!"] = Refused("DO_SET_MODE rejected: DENIED")

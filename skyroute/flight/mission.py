@@ -68,6 +68,13 @@ __all__ = [  # the mission's vocabulary, importable from here
 log = logging.getLogger(__name__)
 E, S = MissionEvent, MissionState
 
+#: How many times the GPS's stated horizontal accuracy (GPS_RAW_INT h_acc) the vehicle may be off its estimate,
+#: the allowance the sensing makes too (``skyroute.vehicle.sensors.POSITION_ERROR_PER_ACCURACY``).
+ACCURACY_SIGMAS = 3.0
+#: The share of the margin that error may take before the mission warns (the live layer's cap on its own
+#: allowance, ``skyroute.planning.livemap.MAX_TOLERANCE_PER_MARGIN``).
+MARGIN_SHARE = 0.7
+
 
 @dataclass
 class MissionResult:
@@ -519,6 +526,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                  " ".join(f"({n:.1f} N, {e:.1f} E, {a:.1f} m)" for n, e, a in waypoints[:, :3]))
         self._check_fence(start, waypoints)
         self._check_return(start, waypoints)
+        self._check_accuracy()
         self._fire(E.PLANNED)
         return waypoints
 
@@ -542,6 +550,23 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                   f"({self.limits.return_described}); from parts of this route that line meets a building "
                   f"{top:.0f} m tall at map ({north:.0f} N, {east:.0f} E): a failsafe return from there would fly "
                   "into it unless the return altitude is raised")
+
+    def _check_accuracy(self) -> None:
+        """Warn, before arming, when the GPS's stated horizontal accuracy eats most of the margin: the autopilot flies
+        its position estimate along the route, so the vehicle itself is off the route by the estimate's error
+        (``ACCURACY_SIGMAS`` times the stated accuracy, the allowance the sensing also makes) and keeps that much
+        less than the margin from the buildings. Beyond ``MARGIN_SHARE`` of the margin it says so, with the margin
+        that would keep the rest."""
+        accuracy = float(getattr(self.vehicle.telemetry, "horizontal_accuracy_m", math.nan))
+        if not accuracy > 0:  # unknown (NaN) or not stated
+            return
+        error = ACCURACY_SIGMAS * accuracy
+        if error <= MARGIN_SHARE * self.replan_margin_m:
+            return
+        self._say(f"warning: the GPS states a horizontal accuracy of {accuracy:.1f} m: the {self.replan_margin_m:g} m "
+                  f"margin is kept round the position estimate, and the vehicle itself may be {error:.1f} m off it; "
+                  f"a --safety of {error / MARGIN_SHARE:.1f} m or more would keep {1 - MARGIN_SHARE:.0%} of the "
+                  "margin")
 
     def _check_fence(self, home: LocalNED, waypoints: np.ndarray) -> None:
         """Refuse, before arming, a route that leaves the autopilot's geofence round ``home`` (where it arms): at

@@ -151,7 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="mean wind velocity north,east (m/s, direction the air moves towards)")
     g.add_argument("--gust", type=_ranged(0, 100), default=0.0, help="wind gust standard deviation (m/s)")
     g.add_argument("--gps-noise", type=_ranged(0, 1000), default=0.0,
-                   help="reported-position noise standard deviation (m); collisions use the truth")
+                   help="position-estimate error standard deviation (m): reported, and flown (the vehicle "
+                        "is off its commands by it); collisions use the truth")
     g.add_argument("--seed", type=int, default=0, help="seed for wind, GPS noise and packet loss")
     g.add_argument("--physics-dt", type=_ranged(0, 0.1, low_open=True), default=0.02,
                    help="fixed physics step (simulated s)")

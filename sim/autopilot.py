@@ -115,7 +115,18 @@ class Autopilot(CommandHandlers, TaskControl):
 
     @property
     def position_neu(self) -> np.ndarray:
-        return self.quad.state.position_neu
+        """Where the autopilot believes it is (map frame, m): the truth plus :meth:`estimate_error_neu`. What its
+        controller, its modes and its commands act on; the truth is ``quad.state.position_neu``."""
+        return self.quad.state.position_neu + self.estimate_error_neu()
+
+    def estimate_error_neu(self) -> np.ndarray:
+        """The position estimate's error (m, map frame): the horizontal ``--gps-noise``. Height is held on the
+        barometer, as PX4's and ArduPilot's estimators do by default, so the vertical GPS error only shows in the
+        reported altitude."""
+        error = np.zeros(3)
+        if self.cfg.gps_noise_m > 0:
+            error[:2] = self.gps_noise[:2]
+        return error
 
     @property
     def airborne(self) -> bool:
@@ -354,7 +365,8 @@ class Autopilot(CommandHandlers, TaskControl):
                     self.gust[i] += -k * self.gust[i] + kick
             wind = np.array([self.cfg.wind_m_s[0], self.cfg.wind_m_s[1], 0.0]) + self.gust
         motors = self.armed and not self.crashed
-        touched = self.quad.step(dt_s, self.control_target(), motors, self._ground_fn, wind)
+        touched = self.quad.step(dt_s, self.control_target(), motors, self._ground_fn, wind,
+                                 self.estimate_error_neu())
         self.sim_time_s += dt_s
         if self.cfg.gps_noise_m > 0:
             k = dt_s / 10.0

@@ -59,7 +59,9 @@ class SimConfig:
     gust_m_s : float
         Standard deviation of wind gusts (m/s), per horizontal axis.
     gps_noise_m : float
-        Standard deviation of reported-position noise (m), 1-order Gauss-Markov with 10 s correlation.
+        Standard deviation of the position estimate's error (m), 1-order Gauss-Markov with 10 s correlation: the
+        reported position carries it, and the autopilot flies its estimate, so the vehicle itself is off every
+        commanded position by its horizontal part (collisions use the truth).
     seed : int
         Seed for wind, GPS noise and packet loss.
     physics_dt_s : float

@@ -100,10 +100,12 @@ class PointMassQuad:
         self.state = QuadState(position_neu=np.array(position_neu, dtype=float), yaw_rad=yaw_rad)
         self._lean_m_s2 = np.zeros(2)  # what the velocity loop's integrator has learnt to lean into the wind
 
-    def desired_velocity(self, target: ControlTarget) -> np.ndarray:
-        """Velocity command (m/s, map frame) from the target, before acceleration limits."""
+    def desired_velocity(self, target: ControlTarget, estimate_error_neu: np.ndarray | None = None) -> np.ndarray:
+        """Velocity command (m/s, map frame) from the target, before acceleration limits; the position loop acts
+        on the autopilot's estimate, the truth plus ``estimate_error_neu`` (m, map frame)."""
         lim = self.limits
         s = self.state
+        here = s.position_neu if estimate_error_neu is None else s.position_neu + estimate_error_neu
         pos_t = np.array(target.position_neu, dtype=float)
         vel_t = np.array(target.velocity_neu, dtype=float)
         vmax_h = lim.max_horizontal_speed_m_s
@@ -115,7 +117,7 @@ class PointMassQuad:
         v_des = np.zeros(3)
         # Horizontal: joint profile when both axes are position-controlled.
         if math.isfinite(pos_t[0]) and math.isfinite(pos_t[1]):
-            err = pos_t[:2] - s.position_neu[:2]
+            err = pos_t[:2] - here[:2]
             dist = float(np.hypot(*err))
             if dist > 1e-9:
                 speed = _approach_speed(dist, vmax_h, lim.position_gain_1_s, lim.max_horizontal_accel_m_s2)
@@ -123,7 +125,7 @@ class PointMassQuad:
         else:
             for axis in (0, 1):
                 if math.isfinite(pos_t[axis]):
-                    err = pos_t[axis] - s.position_neu[axis]
+                    err = pos_t[axis] - here[axis]
                     speed = _approach_speed(
                         abs(err), vmax_h, lim.position_gain_1_s, lim.max_horizontal_accel_m_s2
                     )
@@ -138,7 +140,7 @@ class PointMassQuad:
             v_des[:2] = 0.0
         # Vertical.
         if math.isfinite(pos_t[2]):
-            err = pos_t[2] - s.position_neu[2]
+            err = pos_t[2] - here[2]
             vmax = lim.max_climb_m_s if err > 0 else v_down
             v_des[2] = math.copysign(
                 _approach_speed(abs(err), vmax, lim.position_gain_1_s, lim.max_vertical_accel_m_s2), err
@@ -155,6 +157,7 @@ class PointMassQuad:
         armed: bool,
         ground_up_fn: Callable[[float, float, float], float],
         wind_neu: np.ndarray | None = None,
+        estimate_error_neu: np.ndarray | None = None,
     ) -> bool:
         """Advance one fixed step.
 
@@ -170,6 +173,9 @@ class PointMassQuad:
             ``(north_m, east_m, below_up_m) -> up_m`` of the surface under the vehicle.
         wind_neu : ndarray, shape (3,), optional
             Air velocity (m/s, map frame).
+        estimate_error_neu : ndarray, shape (3,), optional
+            The autopilot's position estimate minus the truth (m, map frame): its position loop flies the
+            estimate to the target, so the truth ends up off the target by the error, as on a real vehicle.
 
         Returns
         -------
@@ -184,7 +190,7 @@ class PointMassQuad:
             s.yaw_rate_rad_s = 0.0
             self._lean_m_s2[:] = 0.0
             return False
-        v_des = self.desired_velocity(target)
+        v_des = self.desired_velocity(target, estimate_error_neu)
         if s.on_ground:
             if v_des[2] <= 0.05:
                 s.velocity_neu[:] = 0.0

@@ -72,7 +72,7 @@ class Simulator:
         self._final_report: dict | None = None
         self.autopilot = Autopilot(config, self.city, self.recorder, self._send, self._emit)
         ap = self.autopilot
-        self.recorder.start = self.recorder.place(*ap.position_neu)
+        self.recorder.start = self.recorder.place(*ap.quad.state.position_neu)
         self._signing_key = None if config.signing_key is None else secret_key(config.signing_key)
 
     # ------------------------------------------------------------------ lifecycle

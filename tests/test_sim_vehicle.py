@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import time
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -79,6 +80,28 @@ def test_gps_noise_moves_reports_not_truth(sim_start, sim_connect):
     assert all(m.z == 0.0 for m in c.of_type("LOCAL_POSITION_NED"))  # on the ground z stays exactly 0
     truth = sim.truth()["position"]
     assert (truth["north_m"], truth["east_m"]) == (0.0, 0.0)
+
+
+@pytest.mark.flight
+def test_with_gps_noise_the_autopilot_holds_its_estimate_and_the_truth_wanders(sim_start, sim_connect):
+    """A real autopilot flies its position estimate to the setpoint, so the vehicle itself ends up off it by the
+    estimate's error: the reported position stays on the setpoint while the true one moves with the noise."""
+    sim = sim_start(speedup=20.0, gps_noise_m=2.0, seed=7)
+    c = sim_connect(sim)
+    c.wait_for("HEARTBEAT")
+    _takeoff_offboard(c, sim, altitude_m=5.0)
+    truths, reported = [], []
+    for _ in range(40):  # 80 s simulated, eight times the noise's correlation time
+        c.setpoint_local(0.0, 0.0, -5.0)
+        time.sleep(0.1)
+        pos = sim.truth()["position"]
+        truths.append((pos["north_m"], pos["east_m"]))
+        last = c.of_type("LOCAL_POSITION_NED")[-1]
+        reported.append((last.x, last.y))
+    truths, reported = np.array(truths), np.array(reported)
+    spread_truth, spread_reported = truths.std(axis=0).mean(), reported.std(axis=0).mean()
+    assert spread_truth > 0.8  # the vehicle moved with the estimate's error (2 m standard deviation)
+    assert spread_reported < 0.5 * spread_truth  # the estimate stayed on the setpoint, less the loop's lag
 
 
 @pytest.mark.flight

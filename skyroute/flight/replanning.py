@@ -391,7 +391,7 @@ class ReplanningMixin:
                      blockage.reason)
             self._brake()
         target = self._target_ne
-        lead_in = None
+        lead_in = self._lead_in_ne = None
         while True:
             p = self._map_position()
             here = (p.north_m, p.east_m)
@@ -436,8 +436,9 @@ class ReplanningMixin:
         onto its first leg at once, ``(route from a lead-in point, the point)`` when it must first fly straight on
         to slow down (:func:`turn_lead_in_m`) and that leg is free (margins included: a lead-in into the margin
         of the obstacle just seen would be found blocked again at the next poll) and a route from its end exists,
-        None when it must brake to a stop first. Without this, a new route turning sharply from the vehicle's motion starts with
-        a corner the vehicle can only cut (measured: 2.1 m from a pole with a 5 m margin, ArduPilot in wind)."""
+        None when it must brake to a stop first. Without this, a new route turning sharply from the vehicle's
+        motion starts with a corner the vehicle can only cut (measured: 2.1 m from a pole with a 5 m margin,
+        ArduPilot in wind)."""
         t = self.vehicle.telemetry
         velocity = np.array([t.local_v_north_mps, t.local_v_east_mps], float)
         speed = float(np.hypot(*velocity))

@@ -428,11 +428,9 @@ class Autopilot(CommandHandlers, TaskControl):
 
     def snapshot(self) -> tm.TelemetrySnapshot:
         s = self.quad.state
-        pos = s.position_neu.copy()
-        if self.cfg.gps_noise_m > 0:
-            pos[:2] += self.gps_noise[:2]
-            if self.airborne:
-                pos[2] += self.gps_noise[2]
+        pos = self.position_neu  # the estimate (a new array)
+        if self.cfg.gps_noise_m > 0 and self.airborne:
+            pos[2] += self.gps_noise[2]  # reported, not flown: height is held on the barometer
         home = self.home_neu if self.home_neu is not None else self.boot_neu
         lat, lon, alt = self.city.map_to_geodetic(*pos)
         hlat, hlon, halt = self.city.map_to_geodetic(*home)

@@ -79,6 +79,17 @@ def test_the_mission_talks_to_the_vehicle_only_through_its_protocol():
                                                      "pymavlink")) == []
 
 
+def test_the_missions_copies_of_the_accuracy_allowance_agree_with_their_owners():
+    """The mission may not import the vehicle or planning packages, so it keeps its own copies of the GPS-accuracy
+    allowance they use; the warning it gives must name the same rule the sensing applies."""
+    from skyroute.flight import mission
+    from skyroute.planning import livemap
+    from skyroute.vehicle import sensors
+
+    assert mission.ACCURACY_SIGMAS == sensors.POSITION_ERROR_PER_ACCURACY
+    assert mission.MARGIN_SHARE == livemap.MAX_TOLERANCE_PER_MARGIN
+
+
 def test_the_vehicle_link_knows_nothing_of_planning_or_missions():
     assert _violations(_sources("skyroute.vehicle"), ("skyroute.planning", "skyroute.flight", "skyroute.cli")) == []
 

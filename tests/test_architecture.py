@@ -90,6 +90,13 @@ def test_the_missions_copies_of_the_accuracy_allowance_agree_with_their_owners()
     assert mission.MARGIN_SHARE == livemap.MAX_TOLERANCE_PER_MARGIN
 
 
+def test_scan_matching_reads_the_scans_position_error_with_the_factor_the_sensing_gave_it():
+    from skyroute.planning import scanmatch
+    from skyroute.vehicle import sensors
+
+    assert scanmatch.SIGMAS == sensors.POSITION_ERROR_PER_ACCURACY
+
+
 def test_the_vehicle_link_knows_nothing_of_planning_or_missions():
     assert _violations(_sources("skyroute.vehicle"), ("skyroute.planning", "skyroute.flight", "skyroute.cli")) == []
 

@@ -401,3 +401,74 @@ def test_a_sharp_turn_without_a_free_lead_in_brakes_first(monkeypatch, caplog):
     first = result.replans[0]
     assert first.braked and "not free: braking first" in caplog.text
     assert first.waypoints[0, :2] == pytest.approx((first.north_m, first.east_m))
+
+
+class _DriftingVehicle(SensingVehicle):
+    """Its position estimate (the telemetry, which it flies to the setpoints) is ``error_ne`` (m) off the truth,
+    and its receiver says it may be (``accuracy_m``): the scans are taken at the truth and stamped with the
+    estimate, as the link's sensor reader stamps them. ``truth`` keeps the true map track."""
+
+    def __init__(self, clock, city, error_ne, accuracy_m, **kwargs):
+        super().__init__(clock, city, **kwargs)
+        self.error_ne, self.accuracy_m = np.asarray(error_ne, float), float(accuracy_m)
+        self.truth = []
+
+    def _scan(self, dt):
+        t = self.telemetry
+        if t.on_ground:
+            return
+        n, e = t.north_m + OFFSET.north_m - self.error_ne[0], t.east_m + OFFSET.east_m - self.error_ne[1]
+        self.truth.append((n, e))
+        if self.clock.now < self.next_scan_s:
+            return
+        self.next_scan_s = self.clock.now + 0.1
+        tall = self.top >= -t.down_m
+        d = sector_minima(self.lo[tall], self.hi[tall], n, e, 72, 0.0, self.range_m)
+
+        class Scan:
+            bearings_rad = np.radians(np.arange(0.0, 360.0, 5.0))
+            half_width_rad = math.radians(2.5)
+            distances_m = d
+            max_range_m = self.range_m
+            received_s = time_s = self.clock.now
+            local_ne = (t.north_m, t.east_m)
+            position_error_m = 3.0 * self.accuracy_m
+
+        self.queue.append(Scan())
+
+
+def _off_route_m(points: np.ndarray, route: np.ndarray) -> np.ndarray:
+    """Each point's distance (m) from the polyline ``route``."""
+    a, b = route[:-1], route[1:]
+    ab = b - a
+    t = np.clip(np.einsum("pki,ki->pk", points[:, None] - a, ab) / np.maximum((ab * ab).sum(1), 1e-12), 0.0, 1.0)
+    return np.hypot(*(points[:, None] - (a + t[..., None] * ab)).transpose(2, 0, 1)).min(axis=1)
+
+
+@pytest.mark.parametrize("matched", [True, False])
+def test_scans_matched_to_the_map_bring_a_drifted_estimate_back_onto_the_route(matched):
+    """The estimate 2 m east of the truth (the receiver states 1 m) up a street between blocks: matched to the
+    map's walls, the scans measure the error and the mission flies the route and lands at the goal in truth;
+    without matching, the vehicle flies the whole route and lands 2 m off, as its estimate tells it."""
+    from skyroute.planning.scanmatch import MapSurface, PositionFix
+
+    clock = FakeClock()
+    error = (0.0, 2.0)
+    start = (START[0] - OFFSET.north_m + error[0], START[1] - OFFSET.east_m + error[1])
+    v = _DriftingVehicle(clock, STALE, error, accuracy_m=1.0, start=start)
+    fix = PositionFix(MapSurface(STALE, ALT)) if matched else None
+    mission = make_mission(v, clock, _plan_fn([]), goal_ne=GOAL, obstacles=_obstacles(), position_fix=fix,
+                           replan_errors=(PlanningError,), replan_margin_m=SAFETY, leg_timeout_s=120.0)
+    result = mission.run()
+    assert result.completed
+    truth = np.array(v.truth)
+    landed_m = math.dist(truth[-1], GOAL)
+    if matched:
+        assert fix.correction_ne == pytest.approx((0.0, -2.0), abs=0.2)
+        assert landed_m < 0.75  # the fake's goal tolerance and landing, against 2 m without
+        street = truth[(truth[:, 0] > -60.0) & (truth[:, 0] < 60.0)]
+        assert np.percentile(_off_route_m(street, result.waypoints[:, :2]), 90) < 0.5  # on the route, in truth
+    else:
+        assert landed_m == pytest.approx(2.0, abs=0.3)
+        street = truth[(truth[:, 0] > -60.0) & (truth[:, 0] < 60.0)]
+        assert np.median(_off_route_m(street, result.waypoints[:, :2])) == pytest.approx(2.0, abs=0.3)

@@ -75,6 +75,7 @@ def fly(
     view_port: int | None = None,
     exports: Sequence[str] | None = None,
     replan: bool = True,
+    scan_match: bool = True,
     out,
 ) -> int:
     """Connect, wait for the vehicle, plan from where it is, arm, take off, fly, land at the goal, disarm.
@@ -83,7 +84,8 @@ def fly(
     the mission lands (or holds, or leaves a vehicle whose link stayed lost to its failsafe) before this returns,
     and says so. Progress lines go to ``out`` unless ``quiet``. With ``replan`` (the default) and an autopilot that
     streams obstacle data, the path is checked against what the sensor shows and replanned round it
-    (:func:`obstacle_map`).
+    (:func:`obstacle_map`); with ``scan_match`` too (the default), the scans also measure how far the GPS estimate
+    is off from where the map's buildings show (:func:`position_fix`), and the mission flies with that correction.
     """
     from skyroute import vehicle as vehicle_mod
     from skyroute.flight import mission as mission_mod
@@ -112,6 +114,7 @@ def fly(
     view = None
 
     obstacles = obstacle_map(setting, goal_ne, planner) if replan else None
+    fix = position_fix(setting) if replan and scan_match else None
 
     def plan_from(start_north_m: float, start_east_m: float) -> np.ndarray:
         if obstacles is not None and obstacles.live.hits.any():  # from the air, after an outage: the live grid
@@ -159,8 +162,8 @@ def fly(
                 goal_ne=goal_ne, surface_fn=geometry.surface_m, ground_amsl_m=ground_amsl_m,
                 clearance_fn=clearance, progress=say,
                 arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s,
-                obstacles=obstacles, replan_errors=(PlanningError,), replan_margin_m=setting.safety_m,
-                return_line_fn=geometry.highest_crossed,
+                obstacles=obstacles, position_fix=fix, replan_errors=(PlanningError,),
+                replan_margin_m=setting.safety_m, return_line_fn=geometry.highest_crossed,
             )
             if view is not None:
                 view.follow(mission, drone)
@@ -224,6 +227,13 @@ def obstacle_map(setting: Setting, goal_ne: Sequence[float], planner: str):
     live = LiveMap.for_grid_map(gm, footprint)
     method = "any-angle" if planner == "any-angle" else "grid"
     return Replanner(live, goal_ne, setting.altitude_m, method=method, landable=landable)
+
+
+def position_fix(setting: Setting):
+    """Scan matching against the map's buildings at the flight altitude (``skyroute.planning.scanmatch``)."""
+    from skyroute.planning.scanmatch import MapSurface, PositionFix
+
+    return PositionFix(MapSurface(setting.city.obstacles, setting.altitude_m))
 
 
 def sensed(mission) -> dict:

@@ -112,6 +112,7 @@ def run(
     view: int | None = None,
     export: Sequence[str] | None = None,
     no_replan: bool = False,
+    no_scan_match: bool = False,
     sim_map: str | Path | None = None,
     explore: float | None = None,
     explore_time: float | None = None,
@@ -151,7 +152,8 @@ def run(
         options = dict(planner=planner, goal_alt_m=goal_alt, seed=seed, heartbeat_timeout_s=timeout,
                        arm_timeout_s=arm_timeout, link_lost_timeout_s=link_timeout, target_system=target_system,
                        signing_key=signing_key, ground_amsl_m=ground_amsl, quiet=quiet, log_dir=log_dir,
-                       plot=plot, view_port=view, exports=export, replan=not no_replan, out=out)
+                       plot=plot, view_port=view, exports=export, replan=not no_replan,
+                       scan_match=not no_scan_match, out=out)
         if sim_map is not None and not sim:
             raise UserError("--sim-map needs --sim (it is the bundled simulator's city)")
         if sim_map is not None and not Path(sim_map).is_file():
@@ -253,6 +255,10 @@ def build_parser() -> argparse.ArgumentParser:
     link.add_argument("--no-replan", dest="no_replan", action="store_true",
                       help="do not replan in flight round obstacles the autopilot's sensor shows (default: replan "
                       "whenever it streams OBSTACLE_DISTANCE or proximity DISTANCE_SENSOR data)")
+    link.add_argument("--no-scan-match", dest="no_scan_match", action="store_true",
+                      help="trust the autopilot's position estimate as it is (default: while replanning, match "
+                      "each obstacle scan to the map's buildings and correct the estimate's drift, within the "
+                      "accuracy its GPS states)")
     explore = parser.add_argument_group("exploration (no goal; see skyroute/cli/exploring.py)")
     explore.add_argument("--explore", type=float, metavar="RADIUS_M",
                          help="explore the area within RADIUS_M of the start (frontiers, targets), fly home, land")

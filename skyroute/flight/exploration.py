@@ -261,7 +261,8 @@ class ExplorationMission(Mission):
         if take is None:
             return
         for s in take():
-            north, east = s.north_m + self._offset.north_m, s.east_m + self._offset.east_m
+            cn, ce = self.sensing.correction_ne
+            north, east = s.north_m + self._offset.north_m + cn, s.east_m + self._offset.east_m + ce
             t = self.targets.get(s.target_num)
             if t is None:
                 t = self.targets[s.target_num] = Target(s.target_num, north, east, seen_s=self.clock())

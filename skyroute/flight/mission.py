@@ -56,7 +56,7 @@ from .landing import LandingMixin
 from .path import SmoothPath, leg_headings, path_length_m, smooth_path
 from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, ReturnLineFn, SurfaceFn, Vehicle
 from .recovery import RecoveryMixin, _Abort, _Resumed
-from .replanning import ObstacleMap, ReplanningMixin, Sensing, _Blocked, _Rerouted
+from .replanning import ObstacleMap, PositionFix, ReplanningMixin, Sensing, _Blocked, _Rerouted
 from .states import AIRBORNE_STATES, TRANSITIONS, IllegalTransition, MissionEvent, MissionState, next_state
 
 __all__ = [  # the mission's vocabulary, importable from here
@@ -162,6 +162,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         The live occupancy layer and its replanner (``skyroute.planning.replan.Replanner``): when given and the
         vehicle streams obstacle data (``vehicle.sensing``), the rest of the path is checked at the sensor rate and
         replanned round what the map does not show (:mod:`.replanning`). None: no replanning.
+    position_fix : PositionFix, optional
+        Scan matching against the map (``skyroute.planning.scanmatch.PositionFix``): the scans measure how far the
+        autopilot's position estimate is off, and the mission places readings and flies with that correction.
     replan_errors : tuple of exception types
         What ``obstacles.replan`` raises when the goal is blocked or cut off (with a ``fallback_ne`` attribute).
     replan_margin_m, max_replans : float, int
@@ -193,7 +196,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                  corner_cut_m: float = 0.5, cruise_mps: float = 10.0, accel_mps2: float = 3.0,
                  lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5, lead_s: float = 0.2,
                  velocity_lag_s: float = 0.15, poll_s: float = 0.02, track_interval_s: float = 0.2,
-                 obstacles: ObstacleMap | None = None, replan_errors: tuple[type[BaseException], ...] = (),
+                 obstacles: ObstacleMap | None = None, position_fix: PositionFix | None = None,
+                 replan_errors: tuple[type[BaseException], ...] = (),
                  replan_margin_m: float = 5.0, max_replans: int = 200, look_again_s: float = 3.0,
                  return_line_fn: ReturnLineFn | None = None,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
@@ -224,7 +228,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.lead_s, self.velocity_lag_s, self.brake_lag_s = lead_s, velocity_lag_s, 0.0
         self.poll_s, self.track_interval_s = poll_s, track_interval_s
         self.clock, self.sleep = clock, sleep
-        self.sensing = Sensing(vehicle, obstacles, clock)
+        self.sensing = Sensing(vehicle, obstacles, clock, position_fix)
         self.replan_errors, self.replan_margin_m, self.max_replans = tuple(replan_errors), replan_margin_m, max_replans
         self.look_again_s = float(look_again_s)
         self.state = MissionState.MANUAL
@@ -260,11 +264,15 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
     def _map_position(self) -> LocalNED:
         """Vehicle position in the map frame (down = -altitude above the map's ground)."""
         t = self.vehicle.telemetry
-        return LocalNED(t.north_m + self._offset.north_m, t.east_m + self._offset.east_m,
+        cn, ce = self.sensing.correction_ne
+        return LocalNED(t.north_m + self._offset.north_m + cn, t.east_m + self._offset.east_m + ce,
                         t.down_m + self._offset.down_m)
 
     def _to_local(self, north_m: float, east_m: float, altitude_m: float) -> LocalNED:
-        return LocalNED(north_m - self._offset.north_m, east_m - self._offset.east_m,
+        """The autopilot's local position for a map point: what it must be told to put the vehicle there (with
+        scan matching's correction of its estimate, see :attr:`Sensing.correction_ne`)."""
+        cn, ce = self.sensing.correction_ne
+        return LocalNED(north_m - self._offset.north_m - cn, east_m - self._offset.east_m - ce,
                         -altitude_m - self._offset.down_m)
 
     def _autopilot_time_s(self) -> float:

@@ -70,6 +70,21 @@ class ObstacleMap(Protocol):
     # a replanned route is out and run on a worker thread.
 
 
+class PositionFix(Protocol):
+    """Scan matching against the map (planning's ``scanmatch.PositionFix``)."""
+
+    @property
+    def correction_ne(self) -> tuple[float, float]: ...
+
+    @property
+    def bound_m(self) -> float: ...
+
+    def observe(self, time_s: float, north_m: float, east_m: float, bearings_rad, half_width_rad: float,
+                distances_m, max_range_m: float, position_error_m: float) -> object: ...
+
+    def describe(self) -> str: ...
+
+
 @dataclass(frozen=True)
 class ReplanRecord:
     """One replan: ``time_s`` (our clock), where (map ``north_m``, ``east_m``), ``reason`` and ``along_m`` of the
@@ -174,16 +189,23 @@ class Sensing:
         None: replanning off (``--no-replan``); readings are still drained (and dropped).
     clock : callable
         Monotonic seconds (the readings' ``received_s`` clock).
+    fix : PositionFix or None
+        Scan matching against the map (planning's ``scanmatch.PositionFix``): each whole scan stamped with its
+        local position is matched to the map's buildings first, and every stamped reading is placed at its
+        position corrected by :attr:`correction_ne` (the mission flies with that correction too), with the fix's
+        bound for how far off that may still be. None: placed at the estimate as it is.
     """
 
     vehicle: object
     obstacles: ObstacleMap | None
     clock: Callable[[], float]
+    fix: PositionFix | None = None
     scans: int = 0
     heights: int = 0
     low_scans: int = 0
     records: list[ReplanRecord] = field(default_factory=list)
     _oldest_s: float = math.nan
+    _fix_logged_s: float = -math.inf
 
     @property
     def active(self) -> bool:
@@ -224,10 +246,16 @@ class Sensing:
                     self.low_scans += 1
                     continue
                 at = getattr(r, "local_ne", None)
-                sn, se = (n, e) if at is None or offset is None else (at[0] + offset[0], at[1] + offset[1])
-                key = (sn, se, float(r.half_width_rad), float(r.max_range_m),
-                       float(getattr(r, "bearing_error_rad", 0.0)), float(getattr(r, "position_error_m", 0.0)))
                 bearings = np.asarray(r.bearings_rad, float)
+                pos_err = float(getattr(r, "position_error_m", 0.0))
+                if at is None or offset is None:
+                    sn, se = n, e  # the mission's map position: corrected already
+                else:
+                    sn, se = at[0] + offset[0], at[1] + offset[1]
+                    if self.fix is not None:
+                        sn, se, pos_err = self._corrected(r, sn, se, bearings, pos_err)
+                key = (sn, se, float(r.half_width_rad), float(r.max_range_m),
+                       float(getattr(r, "bearing_error_rad", 0.0)), pos_err)
                 if batch and (batch[0][:6] != key or len(bearings) != 1
                               or any(float(b[6][0]) == float(bearings[0]) for b in batch)):
                     flush()  # a whole scan, another place, or the same sector again: its own update
@@ -243,6 +271,27 @@ class Sensing:
             self.heights += 1
         flush()
         return True
+
+    def _corrected(self, r, north_m: float, east_m: float, bearings: np.ndarray, position_error_m: float):
+        """A stamped reading's map position corrected by the fix (a whole scan matched first), and how far off
+        it may still be."""
+        fix = self.fix
+        if len(bearings) > 1:
+            t = float(getattr(r, "time_s", math.nan))
+            fix.observe(t if math.isfinite(t) else self.clock(), north_m, east_m, bearings, float(r.half_width_rad),
+                        np.asarray(r.distances_m, float), float(r.max_range_m), position_error_m)
+        cn, ce = fix.correction_ne
+        bound = fix.bound_m
+        now = self.clock()
+        if bound >= 0 and now - self._fix_logged_s >= 5.0:
+            self._fix_logged_s = now
+            log.info("position fix: %s", fix.describe())
+        return north_m + cn, east_m + ce, min(position_error_m, bound) if bound >= 0 else position_error_m
+
+    @property
+    def correction_ne(self) -> tuple[float, float]:
+        """What scan matching adds to the position estimate (map north, east m); zeros without a fix."""
+        return (0.0, 0.0) if self.fix is None else self.fix.correction_ne
 
     def step(self, position_ne: Sequence[float], waypoints_ne: np.ndarray,
              offset_ne: Sequence[float] | None = None, **below) -> Blockage | None:
@@ -285,6 +334,8 @@ class Sensing:
             where = f" within ({lo[0]:.0f}..{hi[0]:.0f} N, {lo[1]:.0f}..{hi[1]:.0f} E)"
         log.info("sensing: %d scans (%d from below the altitude, dropped), %d observed obstacle cells%s, %d replans",
                  self.scans, self.low_scans, len(cells), where, len(self.records))
+        if self.fix is not None:
+            log.info("position fix: %s", self.fix.describe())
 
     def discovered_ne(self) -> np.ndarray:
         """Map ``(north_m, east_m)`` of the observed obstacle cells, ``(K, 2)``."""

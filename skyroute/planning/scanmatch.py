@@ -1,0 +1,334 @@
+"""Scan matching: how far the position estimate is off, read from where the map's own buildings show in the scans.
+
+A GPS position estimate drifts by metres over tens of seconds (the receiver states it: GPS_RAW_INT ``h_acc``); the
+horizontal range sensor sees the map's buildings where they stand *relative to the vehicle*. Placed at the
+estimate, a scan of a street's walls lands beside the map's walls by the estimate's error. Shifting it until it
+fits them again measures that error, in every direction the buildings in view constrain (along a straight street
+only across it). Arrays in, arrays out (planning never imports the vehicle or the mission).
+
+* :class:`MapSurface`: the map's boxes that cut the sensor's plane, with signed distances (m) to their faces.
+* :func:`match_scan`: the shift (map north, east m) that puts one scan's readings on those faces, with its
+  information matrix (how well each direction is constrained); readings far from every face (a new obstacle, a
+  building the map lacks) do not pull it.
+* :class:`DriftEstimate`: the correction over time, a Kalman filter on a first-order Gauss-Markov error (the
+  stated accuracy as its stationary spread, ``correlation_s`` its time constant): without matches it relaxes to
+  0 with the stated accuracy as its spread, as the estimate itself.
+* :class:`PositionFix`: the two together, fed scan by scan: ``correction_ne`` is what to add to the estimate (map
+  frame) and ``bound_m`` how far off the corrected position may still be (:data:`SIGMAS` of its spread).
+
+Only narrow sectors are matched (PX4's 5 degrees, half width up to :data:`MAX_HALF_WIDTH_RAD`): a reading is the
+nearest point anywhere in its sector, so ArduPilot's 45 degree sectors place it anywhere along a 24 m arc.
+
+>>> boxes = np.array([[0.0, 20.0, 10.0, 50.0, 5.0, 10.0], [0.0, -20.0, 10.0, 50.0, 5.0, 10.0]])  # a street
+>>> surface = MapSurface(boxes, altitude_m=5.0)
+>>> float(surface.signed_distance(np.array([[0.0, 12.0]]), surface.near(0.0, 0.0, 30.0))[0][0])
+3.0
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: The bound is this many standard deviations (equal to ``skyroute.vehicle.sensors.POSITION_ERROR_PER_ACCURACY``,
+#: the factor a scan's ``position_error_m`` carries: a test keeps them equal).
+SIGMAS = 3.0
+#: Sectors wider than this (half width, rad) are not matched.
+MAX_HALF_WIDTH_RAD = math.radians(3.0)
+#: A match needs this many readings on the map's faces.
+MIN_INLIERS = 8
+#: A direction is constrained by a scan when at least this many readings' faces face it (the eigenvalues of the
+#: sum of their unit normals' outer products count readings).
+MIN_DIRECTION_READINGS = 4.0
+#: Readings in one scan are not independent (the map's boxes are approximations, the sectors overlap the same
+#: faces): a scan weighs as this many independent readings at most.
+EFFECTIVE_READINGS = 5.0
+
+
+class MapSurface:
+    """The map's boxes that stand through the sensor's plane at ``altitude_m`` (bottom at or below it, top at
+    most ``below_m`` under it: the vehicle flies that much low at times, and then reads them), for signed distances
+    to their faces. A face that is not read costs nothing (only readings are matched to faces), but a reading of a
+    box left out here could be taken for the nearest face that is in, so err on the side of keeping boxes.
+
+    Parameters
+    ----------
+    obstacles : (N, 6) array
+        The map's boxes: centre north, east, altitude (m), half sizes north, east, up (m).
+    altitude_m : float
+        The sensor's plane (m above the map's ground).
+    below_m : float
+        How far below the plane a box's top may be.
+    bucket_m : float
+        Side of the square buckets that index the boxes (m).
+    """
+
+    def __init__(self, obstacles: np.ndarray, altitude_m: float, *, below_m: float = 1.0,
+                 bucket_m: float = 16.0) -> None:
+        obs = np.asarray(obstacles, float).reshape(-1, 6)
+        keep = (obs[:, 2] + obs[:, 5] >= altitude_m - below_m) & (obs[:, 2] - obs[:, 5] <= altitude_m)
+        self.centres = obs[keep, :2].copy()
+        self.halves = obs[keep, 3:5].copy()
+        self.bucket_m = float(bucket_m)
+        self._buckets: dict[tuple[int, int], list[int]] = {}
+        lo = np.floor((self.centres - self.halves) / self.bucket_m).astype(int)
+        hi = np.floor((self.centres + self.halves) / self.bucket_m).astype(int)
+        for k, ((n0, e0), (n1, e1)) in enumerate(zip(lo, hi)):
+            for i in range(n0, n1 + 1):
+                for j in range(e0, e1 + 1):
+                    self._buckets.setdefault((i, j), []).append(k)
+
+    def __len__(self) -> int:
+        return len(self.centres)
+
+    def near(self, north_m: float, east_m: float, reach_m: float) -> np.ndarray:
+        """Indices of the boxes that may lie within ``reach_m`` of the point (a superset: whole buckets)."""
+        b = self.bucket_m
+        i0, i1 = math.floor((north_m - reach_m) / b), math.floor((north_m + reach_m) / b)
+        j0, j1 = math.floor((east_m - reach_m) / b), math.floor((east_m + reach_m) / b)
+        found: set[int] = set()
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                found.update(self._buckets.get((i, j), ()))
+        return np.fromiter(sorted(found), int, len(found))
+
+    def signed_distance(self, points_ne: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance (m; negative inside a box) from each point (``(..., 2)`` map north, east m) to the
+        nearest face of the boxes ``boxes`` (indices from :meth:`near`), and its gradient (``(..., 2)``, the unit
+        direction away from that face). ``inf`` and a zero gradient where there are no boxes."""
+        pts = np.asarray(points_ne, float)
+        if len(boxes) == 0:
+            return np.full(pts.shape[:-1], np.inf), np.zeros(pts.shape)
+        rel = pts[..., None, :] - self.centres[boxes]  # (..., B, 2)
+        q = np.abs(rel) - self.halves[boxes]
+        outside = np.hypot(np.maximum(q[..., 0], 0.0), np.maximum(q[..., 1], 0.0))
+        inside = np.minimum(np.maximum(q[..., 0], q[..., 1]), 0.0)
+        sd = outside + inside  # (..., B)
+        k = np.argmin(sd, axis=-1)[..., None]
+        best = np.take_along_axis(sd, k, axis=-1)[..., 0]
+        qk = np.take_along_axis(q, k[..., None], axis=-2)[..., 0, :]
+        sign = np.sign(np.take_along_axis(rel, k[..., None], axis=-2)[..., 0, :])
+        sign[sign == 0] = 1.0
+        out = np.maximum(qk, 0.0)
+        norm = np.hypot(out[..., 0], out[..., 1])
+        grad = np.where(norm[..., None] > 1e-9, out / np.maximum(norm, 1e-9)[..., None], 0.0)
+        along_north = qk[..., 0] >= qk[..., 1]
+        inner = np.stack([along_north, ~along_north], axis=-1).astype(float)
+        grad = np.where((norm > 1e-9)[..., None], grad, inner) * sign
+        return best, grad
+
+
+@dataclass(frozen=True)
+class Match:
+    """One scan's fit: ``offset_ne`` (m, map north and east) is where the scan fits the map's faces best relative
+    to where it was placed, ``information`` (2x2, 1/m^2) how well each direction is constrained, ``inliers`` the
+    readings on a face and ``rms_m`` their distance from it after the shift."""
+
+    offset_ne: np.ndarray
+    information: np.ndarray
+    inliers: int
+    rms_m: float
+
+
+def _residuals(surface: MapSurface, boxes: np.ndarray, samples: np.ndarray, shift: np.ndarray):
+    """Per reading: the least signed distance along its arc (0 when the arc touches a face and nothing in the
+    sector is nearer, negative when a face cuts into it), and that sample's gradient."""
+    sd, grad = surface.signed_distance(samples + shift, boxes)  # (K, S), (K, S, 2)
+    k = np.argmin(sd, axis=1)[:, None]
+    r = np.take_along_axis(sd, k, axis=1)[:, 0]
+    g = np.take_along_axis(grad, k[..., None], axis=1)[:, 0, :]
+    return r, g
+
+
+def match_scan(surface: MapSurface, north_m: float, east_m: float, bearings_rad, half_width_rad: float,
+               distances_m, max_range_m: float, *, start_ne=(0.0, 0.0), search_m: float = 0.0,
+               inlier_m: float = 1.5, sigma_m: float = 0.4, iterations: int = 8) -> Match | None:
+    """Fit one scan taken at the map position ``(north_m, east_m)`` to the map's faces.
+
+    Each reading (a sector's nearest obstacle at ``distances_m``, in ``bearings_rad`` clockwise from north, half
+    width ``half_width_rad``) says that the arc at that distance across the sector touches a face and that no face
+    cuts into it (it would be nearer); sampled at its ends, centre and between, its residual is the least signed
+    distance along it (a face seen at a grazing angle is nearest at an end of the arc, which is sampled). From
+    ``start_ne`` (m) the shift is searched on a 0.5 m grid within ``search_m`` (the truncated cost, readings beyond
+    ``inlier_m`` of every face counting as ``inlier_m``), then refined by Gauss-Newton with Huber weights
+    (``sigma_m``), readings beyond ``inlier_m`` left out.
+
+    Returns None when the sectors are too wide (:data:`MAX_HALF_WIDTH_RAD`), or fewer than :data:`MIN_INLIERS`
+    readings lie on a face.
+
+    >>> boxes = np.array([[0.0, 20.0, 10.0, 50.0, 5.0, 10.0], [0.0, -20.0, 10.0, 50.0, 5.0, 10.0]])
+    >>> surface = MapSurface(boxes, altitude_m=5.0)
+    >>> b = np.radians(np.arange(0.0, 360.0, 5.0))
+    >>> east = np.abs(np.sin(b)); d = np.where(east > 0.3, 15.0 / np.maximum(east, 0.3), np.inf)  # walls 15 m away
+    >>> m = match_scan(surface, 0.0, 1.0, b, math.radians(2.5), d, 30.0, search_m=2.0)  # placed 1 m east
+    >>> round(float(m.offset_ne[1]), 1), bool(m.information[1, 1] > 100 * m.information[0, 0])
+    (-1.0, True)
+    """
+    if half_width_rad > MAX_HALF_WIDTH_RAD:
+        return None
+    bearings = np.asarray(bearings_rad, float)
+    dist = np.asarray(distances_m, float)
+    ok = np.isfinite(dist) & (dist > 0.3) & (dist < 0.999 * max_range_m)
+    if ok.sum() < MIN_INLIERS:
+        return None
+    b, d = bearings[ok], dist[ok]
+    spread = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) * half_width_rad
+    angles = b[:, None] + spread  # (K, S)
+    samples = np.stack([north_m + d[:, None] * np.cos(angles), east_m + d[:, None] * np.sin(angles)], axis=-1)
+    shift = np.asarray(start_ne, float).copy()
+    boxes = surface.near(north_m + shift[0], east_m + shift[1], max_range_m + search_m + 1.0)
+    if len(boxes) == 0:
+        return None
+    if search_m > 0.25:
+        steps = np.arange(-search_m, search_m + 1e-9, max(0.5, search_m / 5.0))
+        grid = np.stack(np.meshgrid(steps, steps, indexing="ij"), axis=-1).reshape(-1, 2)
+        grid = grid[np.hypot(grid[:, 0], grid[:, 1]) <= search_m + 1e-9]
+        coarse = samples[:, ::2, :]  # the search reads each arc at its ends and centre only
+        sd = surface.signed_distance(coarse[None] + (shift + grid)[:, None, None, :], boxes)[0].min(axis=2)
+        shift = shift + grid[int(np.argmin(np.minimum(np.square(sd), inlier_m ** 2).sum(axis=1)))]
+    for _ in range(iterations):
+        r, g = _residuals(surface, boxes, samples, shift)
+        inl = np.abs(r) <= inlier_m
+        if inl.sum() < MIN_INLIERS:
+            return None
+        w = np.where(inl, np.minimum(1.0, sigma_m / np.maximum(np.abs(r), 1e-9)), 0.0)
+        h = (g * w[:, None]).T @ g
+        step = -np.linalg.solve(h + 1e-6 * np.eye(2) + 1e-3 * np.trace(h) * np.eye(2), (g * w[:, None]).T @ r)
+        shift = shift + step
+        if float(np.hypot(*step)) < 0.01:
+            break
+    r, g = _residuals(surface, boxes, samples, shift)
+    inl = np.abs(r) <= inlier_m
+    if inl.sum() < MIN_INLIERS:
+        return None
+    gi = g[inl]
+    # Only directions that several readings constrain carry information: in a weak one (one face end in view)
+    # the shift is where the search started, and fusing that as a measurement would only confirm the start.
+    counts, axes = np.linalg.eigh(gi.T @ gi)
+    kept = np.where(counts >= MIN_DIRECTION_READINGS, counts, 0.0)
+    if not kept.any():
+        return None
+    information = (axes * kept) @ axes.T / sigma_m ** 2 * min(1.0, EFFECTIVE_READINGS / len(gi))
+    return Match(shift, information, int(inl.sum()), float(np.sqrt(np.mean(np.square(r[inl])))))
+
+
+class DriftEstimate:
+    """The correction to the position estimate over time (map north, east m): a Kalman filter whose state, like
+    the estimate's error, is a first-order Gauss-Markov process (spread ``sigma_m`` from the stated accuracy,
+    time constant ``correlation_s``) observed by :class:`Match` es.
+
+    A match that disagrees beyond the chi-square gate (``gate``, 2 degrees of freedom) is set aside; after
+    ``reset_after`` in a row (the estimate jumped: a GPS glitch, a reset) the filter starts again from the prior."""
+
+    def __init__(self, *, correlation_s: float = 20.0, gate: float = 13.8, reset_after: int = 10) -> None:
+        self.correlation_s, self.gate, self.reset_after = float(correlation_s), float(gate), int(reset_after)
+        self.correction = np.zeros(2)
+        self.covariance: np.ndarray | None = None
+        self.time_s = math.nan
+        self.accepted = self.rejected = self.resets = 0
+        self._in_a_row = 0
+
+    def predict(self, time_s: float, sigma_m: float) -> None:
+        """Carry the estimate to ``time_s`` (s); ``sigma_m`` the stated accuracy now (one standard deviation)."""
+        prior = sigma_m ** 2 * np.eye(2)
+        if self.covariance is None:
+            self.covariance, self.time_s = prior, time_s
+            return
+        dt = time_s - self.time_s if math.isfinite(self.time_s) and math.isfinite(time_s) else 0.0
+        a = math.exp(-max(dt, 0.0) / self.correlation_s)
+        self.correction = a * self.correction
+        self.covariance = a * a * self.covariance + (1.0 - a * a) * prior
+        if math.isfinite(time_s):
+            self.time_s = time_s
+
+    def update(self, match: Match, sigma_m: float) -> bool:
+        """Fuse ``match`` (its offset is the correction it measures); False when it was set aside."""
+        assert self.covariance is not None, "predict first"
+        h = match.information
+        innovation = match.offset_ne - self.correction
+        # The innovation's covariance: the filter's plus the match's, only in the directions it constrains.
+        s = self.covariance + np.linalg.pinv(h + 1e-9 * np.eye(2), rcond=1e-6)
+        if float(innovation @ np.linalg.solve(s, innovation)) > self.gate:
+            self.rejected += 1
+            self._in_a_row += 1
+            if self._in_a_row >= self.reset_after:
+                self.correction, self.covariance = np.zeros(2), sigma_m ** 2 * np.eye(2)
+                self.resets += 1
+                self._in_a_row = 0
+            return False
+        self._in_a_row = 0
+        info = np.linalg.inv(self.covariance)
+        self.covariance = np.linalg.inv(info + h)
+        self.correction = self.covariance @ (info @ self.correction + h @ match.offset_ne)
+        self.accepted += 1
+        return True
+
+    @property
+    def sigma_m(self) -> float:
+        """The spread of the correction in its worst direction (m), NaN before the first prediction."""
+        if self.covariance is None:
+            return math.nan
+        return math.sqrt(max(float(np.linalg.eigvalsh(self.covariance)[-1]), 0.0))
+
+
+class PositionFix:
+    """Scan matching against ``surface`` and the drift estimate, fed one scan at a time (:meth:`observe`).
+
+    ``correction_ne`` (m, map north and east) is what to add to the position estimate; it never exceeds the
+    scan's own bound (``position_error_m``: :data:`SIGMAS` times the stated accuracy), and it is zero while no
+    scan states an accuracy (nothing says the estimate may be off)."""
+
+    def __init__(self, surface: MapSurface, *, correlation_s: float = 20.0, search_every_s: float = 1.0) -> None:
+        self.surface = surface
+        self.estimate = DriftEstimate(correlation_s=correlation_s)
+        self.search_every_s = float(search_every_s)
+        self.matched = 0
+        self._limit_m = 0.0
+        self._searched_s = -math.inf
+
+    @property
+    def active(self) -> bool:
+        return self.estimate.covariance is not None
+
+    @property
+    def correction_ne(self) -> tuple[float, float]:
+        c = self.estimate.correction
+        norm = float(np.hypot(*c))
+        k = 1.0 if norm <= self._limit_m or norm == 0.0 else self._limit_m / norm
+        return float(c[0] * k), float(c[1] * k)
+
+    @property
+    def bound_m(self) -> float:
+        """How far off the corrected position may be (m): :data:`SIGMAS` spreads; NaN before any scan."""
+        return SIGMAS * self.estimate.sigma_m if self.active else math.nan
+
+    def describe(self) -> str:
+        """One line: the correction, its bound, and what the matches did."""
+        cn, ce = self.correction_ne
+        e = self.estimate
+        return (f"correction ({cn:+.2f} N, {ce:+.2f} E) m, bound {self.bound_m:.2f} m; {e.accepted} scans matched, "
+                f"{e.rejected} set aside, {e.resets} restarts")
+
+    def observe(self, time_s: float, north_m: float, east_m: float, bearings_rad, half_width_rad: float,
+                distances_m, max_range_m: float, position_error_m: float) -> Match | None:
+        """One scan placed at the uncorrected map position ``(north_m, east_m)`` at ``time_s`` (s, any clock that
+        runs with the vehicle's), whose placement may be off by ``position_error_m`` (0: unknown, nothing done)."""
+        if not position_error_m > 0 or half_width_rad > MAX_HALF_WIDTH_RAD or len(self.surface) == 0:
+            return None
+        sigma = position_error_m / SIGMAS
+        self._limit_m = position_error_m
+        self.estimate.predict(time_s, sigma)
+        # While the correction is loose (at first, or along a street that leaves it free), search round it at most
+        # once every search_every_s (a few ms); between searches Gauss-Newton tracks it from where it is.
+        search = min(SIGMAS * self.estimate.sigma_m, position_error_m, 4.0)
+        if search <= 1.0 or not time_s - self._searched_s >= self.search_every_s:
+            search = 0.0
+        else:
+            self._searched_s = time_s
+        match = match_scan(self.surface, north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m,
+                           start_ne=self.estimate.correction, search_m=search)
+        if match is not None and self.estimate.update(match, sigma):
+            self.matched += 1
+        return match

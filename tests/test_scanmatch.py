@@ -1,0 +1,197 @@
+"""Scan matching (skyroute.planning.scanmatch): scans taken at a true position by the sim's own sector model
+(``sim.sensors.sector_minima``), placed at a position estimate that is off, are matched back onto the map."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim.sensors import sector_minima
+from skyroute.maps import read_colliders
+from skyroute.planning.cspace import create_grid
+from skyroute.planning.grid import GridMap
+from skyroute.planning.scanmatch import SIGMAS, DriftEstimate, MapSurface, Match, PositionFix, match_scan
+
+ROOT = Path(__file__).resolve().parents[1]
+ALT = 5.0
+BEARINGS = np.radians(np.arange(72) * 5.0)
+HALF = math.radians(2.5)
+#: A straight north-south street 20 m wide: faces at east -10 and +10, 200 m long.
+STREET = np.array([[0.0, 20.0, 10.0, 100.0, 10.0, 10.0], [0.0, -20.0, 10.0, 100.0, 10.0, 10.0]])
+#: The same street closed 15 m north by a block across it: faces in both directions.
+DEAD_END = np.vstack([STREET, [[25.0, 0.0, 10.0, 10.0, 10.0, 10.0]]])
+
+
+def _scan(boxes: np.ndarray, north: float, east: float, range_m: float = 30.0) -> np.ndarray:
+    reach = range_m + np.hypot(boxes[:, 3], boxes[:, 4])
+    cross = ((boxes[:, 2] - boxes[:, 5] <= ALT) & (boxes[:, 2] + boxes[:, 5] >= ALT)
+             & (np.hypot(boxes[:, 0] - north, boxes[:, 1] - east) <= reach))
+    lo, hi = boxes[cross, :2] - boxes[cross, 3:5], boxes[cross, :2] + boxes[cross, 3:5]
+    return sector_minima(lo, hi, north, east, 72, 0.0, range_m)
+
+
+@pytest.fixture(scope="module")
+def bundled():
+    return read_colliders(ROOT / "colliders.csv").obstacles
+
+
+def test_signed_distance_is_the_distance_to_the_nearest_face():
+    box = np.array([[0.0, 0.0, 10.0, 2.0, 1.0, 10.0]])  # north -2..2, east -1..1
+    surface = MapSurface(box, ALT)
+    pts = np.array([[0.0, 4.0], [5.0, 0.0], [5.0, 5.0], [0.0, 0.5], [1.5, 0.0]])
+    sd, grad = surface.signed_distance(pts, surface.near(0.0, 0.0, 10.0))
+    assert sd == pytest.approx([3.0, 3.0, 5.0, -0.5, -0.5])
+    assert grad[0] == pytest.approx([0.0, 1.0]) and grad[1] == pytest.approx([1.0, 0.0])
+    assert grad[2] == pytest.approx([0.6, 0.8])  # from the corner (2, 1) to (5, 5)
+    assert grad[3] == pytest.approx([0.0, 1.0]) and grad[4] == pytest.approx([1.0, 0.0])  # out through the nearer face
+
+
+def test_only_boxes_through_the_sensors_plane_are_faces():
+    boxes = np.array([[0.0, 10.0, 1.0, 1.0, 1.0, 1.0],     # 2 m tall: below the plane
+                      [0.0, 20.0, 14.0, 1.0, 1.0, 6.0],    # 8..20 m: above it
+                      [0.0, 30.0, 2.25, 1.0, 1.0, 2.25]])  # 4.5 m tall: the vehicle, flying low, reads it
+    assert len(MapSurface(boxes, ALT)) == 1
+
+
+def test_a_scan_placed_off_is_matched_back_onto_the_map(bundled):
+    """Random free places in the bundled city, the scan placed up to ~3 m off: in every direction the match
+    says it constrains, the shift undoes the error to a few decimetres."""
+    surface = MapSurface(bundled, ALT)
+    grid, n0, e0 = create_grid(bundled, ALT, 5.0)[:3]
+    free = np.argwhere(~grid)
+    rng = np.random.default_rng(3)
+    errors, matched = [], 0
+    for _ in range(120):
+        cell = free[rng.integers(len(free))]
+        truth = np.array([cell[0] + n0 + 0.5, cell[1] + e0 + 0.5])
+        off = rng.normal(0.0, 1.2, 2)
+        m = match_scan(surface, *(truth + off), BEARINGS, HALF, _scan(bundled, *truth), 30.0, search_m=3.5)
+        if m is None:
+            continue
+        matched += 1
+        weights, axes = np.linalg.eigh(m.information)
+        residual = m.offset_ne + off  # 0 when the shift undoes the error exactly
+        errors += [abs(float(residual @ axes[:, k])) for k in (0, 1) if weights[k] > 0]
+    assert matched >= 100
+    errors = np.array(errors)
+    assert np.median(errors) < 0.1 and np.mean(errors < 0.5) > 0.95
+
+
+def test_along_a_straight_street_only_the_crossing_direction_is_constrained():
+    surface = MapSurface(STREET, ALT)
+    m = match_scan(surface, 3.0, 1.5, BEARINGS, HALF, _scan(STREET, 0.0, 0.0), 30.0, search_m=2.0)
+    assert m.offset_ne[1] == pytest.approx(-1.5, abs=0.1)
+    assert m.information[0, 0] == pytest.approx(0.0, abs=1e-6) and m.information[1, 1] > 0
+    closed = match_scan(MapSurface(DEAD_END, ALT), 3.0, 1.5, BEARINGS, HALF, _scan(DEAD_END, 0.0, 0.0), 30.0,
+                        search_m=3.5)
+    assert closed.offset_ne == pytest.approx([-3.0, -1.5], abs=0.15)
+    assert np.linalg.eigvalsh(closed.information)[0] > 0
+
+
+def test_a_new_wall_the_map_lacks_does_not_pull_the_match():
+    wall = np.array([[8.0, -4.0, 10.0, 0.5, 2.5, 10.0]])  # 5 m across the street, 8 m north, 7 m short of its end
+    d = _scan(np.vstack([DEAD_END, wall]), 0.0, 0.0)
+    m = match_scan(MapSurface(DEAD_END, ALT), 1.0, -1.0, BEARINGS, HALF, d, 30.0, search_m=2.0)
+    assert m.offset_ne == pytest.approx([-1.0, 1.0], abs=0.15)
+    assert np.linalg.eigvalsh(m.information)[0] > 0
+
+
+def test_wide_sectors_and_too_few_readings_are_not_matched():
+    surface = MapSurface(DEAD_END, ALT)
+    eight = np.radians(np.arange(8) * 45.0)
+    assert match_scan(surface, 0.0, 0.0, eight, math.radians(22.5), np.full(8, 10.0), 30.0) is None
+    few = np.where(np.arange(72) < 5, 10.0, np.inf)
+    assert match_scan(surface, 0.0, 0.0, BEARINGS, HALF, few, 30.0) is None
+
+
+def _match(offset, info) -> Match:
+    return Match(np.asarray(offset, float), np.asarray(info, float), 30, 0.1)
+
+
+def test_without_matches_the_correction_relaxes_to_zero_and_its_spread_to_the_stated_accuracy():
+    est = DriftEstimate(correlation_s=10.0)
+    est.predict(0.0, 1.0)
+    assert est.sigma_m == pytest.approx(1.0)
+    assert est.update(_match([2.0, 0.0], np.eye(2) * 100.0), 1.0)
+    assert est.correction[0] == pytest.approx(2.0, abs=0.05) and est.sigma_m < 0.2
+    est.predict(10.0, 1.0)
+    assert est.correction[0] == pytest.approx(2.0 / math.e, abs=0.05)
+    est.predict(100.0, 1.0)
+    assert est.correction == pytest.approx([0.0, 0.0], abs=1e-3) and est.sigma_m == pytest.approx(1.0, abs=1e-3)
+
+
+def test_a_match_only_moves_the_directions_it_constrains():
+    est = DriftEstimate()
+    est.predict(0.0, 1.0)
+    est.update(_match([0.0, 1.5], [[0.0, 0.0], [0.0, 100.0]]), 1.0)  # a street running north: east only
+    assert est.correction == pytest.approx([0.0, 1.5], abs=0.05)
+    assert math.sqrt(est.covariance[0, 0]) == pytest.approx(1.0, abs=1e-3)  # north as unknown as before
+
+
+def test_a_match_far_outside_the_spread_is_set_aside_and_repeated_ones_restart():
+    est = DriftEstimate(reset_after=3)
+    est.predict(0.0, 1.0)
+    for _ in range(20):
+        est.update(_match([0.5, 0.0], np.eye(2) * 50.0), 1.0)
+    assert est.sigma_m < 0.1
+    assert not est.update(_match([3.0, 0.0], np.eye(2) * 50.0), 1.0)  # a jump of 2.5 m at 0.05 m of spread
+    assert est.correction[0] == pytest.approx(0.5, abs=0.01) and est.rejected == 1
+    est.update(_match([3.0, 0.0], np.eye(2) * 50.0), 1.0)
+    est.update(_match([3.0, 0.0], np.eye(2) * 50.0), 1.0)  # the third in a row: the estimate jumped, start again
+    assert est.resets == 1 and est.sigma_m == pytest.approx(1.0)
+    assert est.update(_match([3.0, 0.0], np.eye(2) * 50.0), 1.0)
+    assert est.correction[0] == pytest.approx(3.0, abs=0.1)
+
+
+def test_without_a_stated_accuracy_nothing_is_corrected():
+    fix = PositionFix(MapSurface(DEAD_END, ALT))
+    d = _scan(DEAD_END, 0.0, 0.0)
+    assert fix.observe(0.0, 1.0, 1.0, BEARINGS, HALF, d, 30.0, 0.0) is None
+    assert fix.correction_ne == (0.0, 0.0) and math.isnan(fix.bound_m)
+
+
+def test_the_correction_never_exceeds_the_stated_bound():
+    """Placed 1.7 m off with the receiver claiming 0.5 m (bound 1.5 m): the scans say 1.7 m, the fix gives 1.5."""
+    fix = PositionFix(MapSurface(DEAD_END, ALT), correlation_s=1e9)
+    d = _scan(DEAD_END, 0.0, 0.0)
+    for k in range(40):
+        fix.observe(0.1 * k, 0.0, 1.7, BEARINGS, HALF, d, 30.0, 1.5)
+    assert math.hypot(*fix.correction_ne) == pytest.approx(1.5, abs=1e-6)
+    assert fix.correction_ne[1] < 0
+
+
+def _route_scans(obstacles, seed, sigma_m=1.5):
+    """A 12 m/s flight along a planned route through ``obstacles`` with a Gauss-Markov estimate error (10 s,
+    ``sigma_m`` a side): yields ``(time_s, truth, estimate, distances)`` at 10 Hz."""
+    gm = GridMap.build(obstacles, ALT, 5.0)
+    rng = np.random.default_rng(seed)
+    free = np.argwhere(~gm.grid)
+    while True:
+        a, b = gm.centre_of(free[rng.integers(len(free))]), gm.centre_of(free[rng.integers(len(free))])
+        if 300.0 < math.dist(a, b) < 600.0:
+            break
+    wps = gm.plan(a, b).waypoints[:, :2]
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(wps, axis=0).T))])
+    error = np.zeros(2)
+    for t in np.arange(0.0, arc[-1] / 12.0, 0.1):
+        truth = np.array([np.interp(12.0 * t, arc, wps[:, 0]), np.interp(12.0 * t, arc, wps[:, 1])])
+        error += -0.01 * error + sigma_m * math.sqrt(0.02) * rng.normal(0.0, 1.0, 2)
+        yield t, truth, truth + error, _scan(obstacles, *truth)
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_the_fix_follows_a_drifting_estimate_along_a_route(bundled, seed):
+    fix = PositionFix(MapSurface(bundled, ALT))
+    raw, fixed, beyond = [], [], 0
+    for t, truth, estimate, d in _route_scans(bundled, seed):
+        fix.observe(t, *estimate, BEARINGS, HALF, d, 30.0, SIGMAS * 1.5)
+        corrected = estimate + np.array(fix.correction_ne)
+        raw.append(math.dist(estimate, truth))
+        fixed.append(math.dist(corrected, truth))
+        beyond += fixed[-1] > fix.bound_m
+    raw, fixed = np.array(raw), np.array(fixed)
+    assert np.median(fixed) < 0.5 < 1.5 < np.median(raw)
+    assert beyond / len(fixed) < 0.05  # the bound it states holds (nearly) always

@@ -195,3 +195,30 @@ def test_the_fix_follows_a_drifting_estimate_along_a_route(bundled, seed):
     raw, fixed = np.array(raw), np.array(fixed)
     assert np.median(fixed) < 0.5 < 1.5 < np.median(raw)
     assert beyond / len(fixed) < 0.05  # the bound it states holds (nearly) always
+
+
+def _constrained_errors(obstacles, *, heading_error_rad: float, turn_sigma_rad: float, seed: int = 5):
+    surface = MapSurface(obstacles, ALT)
+    grid, n0, e0 = create_grid(obstacles, ALT, 5.0)[:3]
+    free = np.argwhere(~grid)
+    rng = np.random.default_rng(seed)
+    errors = []
+    for _ in range(80):
+        cell = free[rng.integers(len(free))]
+        truth = np.array([cell[0] + n0 + 0.5, cell[1] + e0 + 0.5])
+        off = rng.normal(0.0, 0.5, 2)
+        m = match_scan(surface, *(truth + off), BEARINGS + heading_error_rad, HALF, _scan(obstacles, *truth), 30.0,
+                       start_ne=-off, turn_sigma_rad=turn_sigma_rad)
+        if m is not None:
+            weights, axes = np.linalg.eigh(m.information)
+            errors += [abs(float((m.offset_ne + off) @ axes[:, k])) for k in (0, 1) if weights[k] > 0]
+    return np.array(errors)
+
+
+def test_a_heading_error_does_not_pass_for_a_shift(bundled):
+    """The bearings 3 degrees off (the heading estimate's error turns the whole scan): the fit turns the scan too,
+    so the shift stays right; held to no turn, the far faces seen at a grazing angle pull it off."""
+    turned = _constrained_errors(bundled, heading_error_rad=math.radians(3.0), turn_sigma_rad=math.radians(2.0))
+    held = _constrained_errors(bundled, heading_error_rad=math.radians(3.0), turn_sigma_rad=1e-4)
+    assert np.percentile(turned, 90) < 0.3
+    assert np.percentile(held, 90) > 2.0 * np.percentile(turned, 90)

@@ -80,7 +80,8 @@ class PositionFix(Protocol):
     def bound_m(self) -> float: ...
 
     def observe(self, time_s: float, north_m: float, east_m: float, bearings_rad, half_width_rad: float,
-                distances_m, max_range_m: float, position_error_m: float) -> object: ...
+                distances_m, max_range_m: float, position_error_m: float, *,
+                bearing_error_rad: float = 0.0) -> object: ...
 
     def describe(self) -> str: ...
 
@@ -279,7 +280,8 @@ class Sensing:
         if len(bearings) > 1:
             t = float(getattr(r, "time_s", math.nan))
             fix.observe(t if math.isfinite(t) else self.clock(), north_m, east_m, bearings, float(r.half_width_rad),
-                        np.asarray(r.distances_m, float), float(r.max_range_m), position_error_m)
+                        np.asarray(r.distances_m, float), float(r.max_range_m), position_error_m,
+                        bearing_error_rad=float(getattr(r, "bearing_error_rad", 0.0)))
         cn, ce = fix.correction_ne
         bound = fix.bound_m
         now = self.clock()

@@ -38,10 +38,12 @@ SIGMAS = 3.0
 #: Sectors wider than this (half width, rad) are not matched.
 MAX_HALF_WIDTH_RAD = math.radians(3.0)
 #: A match needs this many readings on the map's faces.
-MIN_INLIERS = 8
+MIN_INLIERS = 10
 #: A direction is constrained by a scan when at least this many readings' faces face it (the eigenvalues of the
 #: sum of their unit normals' outer products count readings).
 MIN_DIRECTION_READINGS = 4.0
+#: How far the scan's bearings may be turned by the heading estimate's error (rad, one standard deviation).
+HEADING_SIGMA_RAD = math.radians(2.0)
 #: Readings in one scan are not independent (the map's boxes are approximations, the sectors overlap the same
 #: faces): a scan weighs as this many independent readings at most.
 EFFECTIVE_READINGS = 5.0
@@ -132,19 +134,27 @@ class Match:
     rms_m: float
 
 
-def _residuals(surface: MapSurface, boxes: np.ndarray, samples: np.ndarray, shift: np.ndarray):
-    """Per reading: the least signed distance along its arc (0 when the arc touches a face and nothing in the
-    sector is nearer, negative when a face cuts into it), and that sample's gradient."""
-    sd, grad = surface.signed_distance(samples + shift, boxes)  # (K, S), (K, S, 2)
+def _residuals(surface: MapSurface, boxes: np.ndarray, north_m: float, east_m: float, dist: np.ndarray,
+               angles: np.ndarray, shift: np.ndarray, turn_rad: float):
+    """Per reading, with the scan moved by ``shift`` and turned by ``turn_rad`` about the sensor: the least signed
+    distance along its arc (0 when the arc touches a face and nothing in the sector is nearer, negative when a face
+    cuts into it), that sample's gradient (``(K, 2)``) and the residual's rate of change with the turn (m/rad)."""
+    a = angles + turn_rad
+    pts = np.stack([north_m + shift[0] + dist[:, None] * np.cos(a), east_m + shift[1] + dist[:, None] * np.sin(a)],
+                   axis=-1)
+    sd, grad = surface.signed_distance(pts, boxes)  # (K, S), (K, S, 2)
     k = np.argmin(sd, axis=1)[:, None]
     r = np.take_along_axis(sd, k, axis=1)[:, 0]
     g = np.take_along_axis(grad, k[..., None], axis=1)[:, 0, :]
-    return r, g
+    ak = np.take_along_axis(a, k, axis=1)[:, 0]
+    turn = dist * (g[:, 1] * np.cos(ak) - g[:, 0] * np.sin(ak))
+    return r, g, turn
 
 
 def match_scan(surface: MapSurface, north_m: float, east_m: float, bearings_rad, half_width_rad: float,
                distances_m, max_range_m: float, *, start_ne=(0.0, 0.0), search_m: float = 0.0,
-               inlier_m: float = 1.5, sigma_m: float = 0.4, iterations: int = 8) -> Match | None:
+               inlier_m: float = 1.5, sigma_m: float = 0.4, turn_sigma_rad: float = HEADING_SIGMA_RAD,
+               iterations: int = 8) -> Match | None:
     """Fit one scan taken at the map position ``(north_m, east_m)`` to the map's faces.
 
     Each reading (a sector's nearest obstacle at ``distances_m``, in ``bearings_rad`` clockwise from north, half
@@ -153,15 +163,19 @@ def match_scan(surface: MapSurface, north_m: float, east_m: float, bearings_rad,
     distance along it (a face seen at a grazing angle is nearest at an end of the arc, which is sampled). From
     ``start_ne`` (m) the shift is searched on a 0.5 m grid within ``search_m`` (the truncated cost, readings beyond
     ``inlier_m`` of every face counting as ``inlier_m``), then refined by Gauss-Newton with Huber weights
-    (``sigma_m``), readings beyond ``inlier_m`` left out.
+    (``sigma_m``), readings beyond ``inlier_m`` left out. The bearings carry the heading's error (a scan in the
+    body frame turned by the estimated heading, or the autopilot's own rotation to north): the fit also turns the
+    scan about the sensor (spread ``turn_sigma_rad`` round none), so that error does not pass for a shift, and the
+    shift's information is what is left once the turn is unknown.
 
-    Returns None when the sectors are too wide (:data:`MAX_HALF_WIDTH_RAD`), or fewer than :data:`MIN_INLIERS`
-    readings lie on a face.
+    Returns None when the sectors are too wide (:data:`MAX_HALF_WIDTH_RAD`), fewer than :data:`MIN_INLIERS`
+    readings lie on a face, or those lie farther from them than ``sigma_m`` (root mean square): a poor fit.
 
     >>> boxes = np.array([[0.0, 20.0, 10.0, 50.0, 5.0, 10.0], [0.0, -20.0, 10.0, 50.0, 5.0, 10.0]])
     >>> surface = MapSurface(boxes, altitude_m=5.0)
     >>> b = np.radians(np.arange(0.0, 360.0, 5.0))
-    >>> east = np.abs(np.sin(b)); d = np.where(east > 0.3, 15.0 / np.maximum(east, 0.3), np.inf)  # walls 15 m away
+    >>> east = np.abs(np.sin(b[:, None] + np.radians([-2.5, 0.0, 2.5]))).max(axis=1)  # the sector's nearest point
+    >>> d = np.where(east > 0.3, 15.0 / np.maximum(east, 0.3), np.inf)  # of walls 15 m east and west
     >>> m = match_scan(surface, 0.0, 1.0, b, math.radians(2.5), d, 30.0, search_m=2.0)  # placed 1 m east
     >>> round(float(m.offset_ne[1]), 1), bool(m.information[1, 1] > 100 * m.information[0, 0])
     (-1.0, True)
@@ -173,11 +187,9 @@ def match_scan(surface: MapSurface, north_m: float, east_m: float, bearings_rad,
     ok = np.isfinite(dist) & (dist > 0.3) & (dist < 0.999 * max_range_m)
     if ok.sum() < MIN_INLIERS:
         return None
-    b, d = bearings[ok], dist[ok]
-    spread = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) * half_width_rad
-    angles = b[:, None] + spread  # (K, S)
-    samples = np.stack([north_m + d[:, None] * np.cos(angles), east_m + d[:, None] * np.sin(angles)], axis=-1)
-    shift = np.asarray(start_ne, float).copy()
+    d = dist[ok]
+    angles = bearings[ok][:, None] + np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) * half_width_rad  # (K, S)
+    shift, turn = np.asarray(start_ne, float).copy(), 0.0
     boxes = surface.near(north_m + shift[0], east_m + shift[1], max_range_m + search_m + 1.0)
     if len(boxes) == 0:
         return None
@@ -185,33 +197,42 @@ def match_scan(surface: MapSurface, north_m: float, east_m: float, bearings_rad,
         steps = np.arange(-search_m, search_m + 1e-9, max(0.5, search_m / 5.0))
         grid = np.stack(np.meshgrid(steps, steps, indexing="ij"), axis=-1).reshape(-1, 2)
         grid = grid[np.hypot(grid[:, 0], grid[:, 1]) <= search_m + 1e-9]
-        coarse = samples[:, ::2, :]  # the search reads each arc at its ends and centre only
-        sd = surface.signed_distance(coarse[None] + (shift + grid)[:, None, None, :], boxes)[0].min(axis=2)
+        a = angles[:, ::2]  # the search reads each arc at its ends and centre only
+        coarse = np.stack([north_m + shift[0] + d[:, None] * np.cos(a), east_m + shift[1] + d[:, None] * np.sin(a)],
+                          axis=-1)
+        sd = surface.signed_distance(coarse[None] + grid[:, None, None, :], boxes)[0].min(axis=2)
         shift = shift + grid[int(np.argmin(np.minimum(np.square(sd), inlier_m ** 2).sum(axis=1)))]
+    prior = np.diag([0.0, 0.0, 1.0 / max(turn_sigma_rad, 1e-6) ** 2])
     for _ in range(iterations):
-        r, g = _residuals(surface, boxes, samples, shift)
+        r, g, jt = _residuals(surface, boxes, north_m, east_m, d, angles, shift, turn)
         inl = np.abs(r) <= inlier_m
         if inl.sum() < MIN_INLIERS:
             return None
         w = np.where(inl, np.minimum(1.0, sigma_m / np.maximum(np.abs(r), 1e-9)), 0.0)
-        h = (g * w[:, None]).T @ g
-        step = -np.linalg.solve(h + 1e-6 * np.eye(2) + 1e-3 * np.trace(h) * np.eye(2), (g * w[:, None]).T @ r)
-        shift = shift + step
-        if float(np.hypot(*step)) < 0.01:
+        jac = np.column_stack([g, jt])
+        h = (jac * w[:, None]).T @ jac
+        h += prior * sigma_m ** 2 + np.diag([1e-6 + 1e-3 * np.trace(h[:2, :2])] * 2 + [0.0])
+        step = -np.linalg.solve(h, (jac * w[:, None]).T @ r + prior[:, 2] * sigma_m ** 2 * turn)
+        shift, turn = shift + step[:2], turn + float(step[2])
+        if float(np.hypot(*step[:2])) < 0.01 and abs(float(step[2])) < 1e-4:
             break
-    r, g = _residuals(surface, boxes, samples, shift)
+    r, g, jt = _residuals(surface, boxes, north_m, east_m, d, angles, shift, turn)
     inl = np.abs(r) <= inlier_m
-    if inl.sum() < MIN_INLIERS:
+    rms = float(np.sqrt(np.mean(np.square(r[inl])))) if inl.any() else math.inf
+    if inl.sum() < MIN_INLIERS or rms > sigma_m:  # too few readings on the faces, or a poor fit of them
         return None
     gi = g[inl]
     # Only directions that several readings constrain carry information: in a weak one (one face end in view)
     # the shift is where the search started, and fusing that as a measurement would only confirm the start.
     counts, axes = np.linalg.eigh(gi.T @ gi)
-    kept = np.where(counts >= MIN_DIRECTION_READINGS, counts, 0.0)
-    if not kept.any():
+    kept = axes[:, counts >= MIN_DIRECTION_READINGS]
+    if kept.shape[1] == 0:
         return None
-    information = (axes * kept) @ axes.T / sigma_m ** 2 * min(1.0, EFFECTIVE_READINGS / len(gi))
-    return Match(shift, information, int(inl.sum()), float(np.sqrt(np.mean(np.square(r[inl])))))
+    jac = np.column_stack([gi, jt[inl]])
+    full = jac.T @ jac / sigma_m ** 2 * min(1.0, EFFECTIVE_READINGS / len(gi)) + prior
+    shift_info = full[:2, :2] - np.outer(full[:2, 2], full[2, :2]) / full[2, 2]  # the turn left unknown
+    information = kept @ (kept.T @ shift_info @ kept) @ kept.T
+    return Match(shift, information, int(inl.sum()), rms)
 
 
 class DriftEstimate:
@@ -312,9 +333,11 @@ class PositionFix:
                 f"{e.rejected} set aside, {e.resets} restarts")
 
     def observe(self, time_s: float, north_m: float, east_m: float, bearings_rad, half_width_rad: float,
-                distances_m, max_range_m: float, position_error_m: float) -> Match | None:
+                distances_m, max_range_m: float, position_error_m: float, *,
+                bearing_error_rad: float = 0.0) -> Match | None:
         """One scan placed at the uncorrected map position ``(north_m, east_m)`` at ``time_s`` (s, any clock that
-        runs with the vehicle's), whose placement may be off by ``position_error_m`` (0: unknown, nothing done)."""
+        runs with the vehicle's), whose placement may be off by ``position_error_m`` (0: unknown, nothing done) and
+        whose bearings by ``bearing_error_rad`` beyond the heading estimate's own error."""
         if not position_error_m > 0 or half_width_rad > MAX_HALF_WIDTH_RAD or len(self.surface) == 0:
             return None
         sigma = position_error_m / SIGMAS
@@ -328,7 +351,8 @@ class PositionFix:
         else:
             self._searched_s = time_s
         match = match_scan(self.surface, north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m,
-                           start_ne=self.estimate.correction, search_m=search)
+                           start_ne=self.estimate.correction, search_m=search,
+                           turn_sigma_rad=math.hypot(HEADING_SIGMA_RAD, bearing_error_rad))
         if match is not None and self.estimate.update(match, sigma):
             self.matched += 1
         return match

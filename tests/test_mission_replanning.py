@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -51,18 +52,15 @@ class SensingVehicle(FakeVehicle):
         if self.clock.now < self.next_scan_s or t.on_ground:
             return
         self.next_scan_s = self.clock.now + 0.1
-        n, e = t.north_m + OFFSET.north_m, t.east_m + OFFSET.east_m
-        tall = self.top >= -t.down_m
-        d = sector_minima(self.lo[tall], self.hi[tall], n, e, 72, 0.0, self.range_m)
+        self._take(t.north_m + OFFSET.north_m, t.east_m + OFFSET.east_m, -t.down_m)
 
-        class Scan:
-            bearings_rad = np.radians(np.arange(0.0, 360.0, 5.0))
-            half_width_rad = math.radians(2.5)
-            distances_m = d
-            max_range_m = self.range_m
-            received_s = self.clock.now
-
-        self.queue.append(Scan())
+    def _take(self, north_m, east_m, altitude_m, **stamp):
+        """Queue a scan taken at the map point (the boxes reaching ``altitude_m``), with ``stamp``'s attributes."""
+        tall = self.top >= altitude_m
+        d = sector_minima(self.lo[tall], self.hi[tall], north_m, east_m, 72, 0.0, self.range_m)
+        self.queue.append(SimpleNamespace(bearings_rad=np.radians(np.arange(0.0, 360.0, 5.0)),
+                                          half_width_rad=math.radians(2.5), distances_m=d, max_range_m=self.range_m,
+                                          received_s=self.clock.now, **stamp))
 
     def sensor_readings(self):
         out, self.queue = self.queue, []
@@ -422,19 +420,8 @@ class _DriftingVehicle(SensingVehicle):
         if self.clock.now < self.next_scan_s:
             return
         self.next_scan_s = self.clock.now + 0.1
-        tall = self.top >= -t.down_m
-        d = sector_minima(self.lo[tall], self.hi[tall], n, e, 72, 0.0, self.range_m)
-
-        class Scan:
-            bearings_rad = np.radians(np.arange(0.0, 360.0, 5.0))
-            half_width_rad = math.radians(2.5)
-            distances_m = d
-            max_range_m = self.range_m
-            received_s = time_s = self.clock.now
-            local_ne = (t.north_m, t.east_m)
-            position_error_m = 3.0 * self.accuracy_m
-
-        self.queue.append(Scan())
+        self._take(n, e, -t.down_m, time_s=self.clock.now, local_ne=(t.north_m, t.east_m),
+                   position_error_m=3.0 * self.accuracy_m)
 
 
 def _off_route_m(points: np.ndarray, route: np.ndarray) -> np.ndarray:

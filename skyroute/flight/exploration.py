@@ -260,8 +260,8 @@ class ExplorationMission(Mission):
         take = getattr(self.vehicle, "target_sightings", None)
         if take is None:
             return
+        cn, ce = self.sensing.correction_ne
         for s in take():
-            cn, ce = self.sensing.correction_ne
             north, east = s.north_m + self._offset.north_m + cn, s.east_m + self._offset.east_m + ce
             t = self.targets.get(s.target_num)
             if t is None:

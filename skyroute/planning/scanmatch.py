@@ -305,7 +305,6 @@ class PositionFix:
         self.surface = surface
         self.estimate = DriftEstimate(correlation_s=correlation_s)
         self.search_every_s = float(search_every_s)
-        self.matched = 0
         self._limit_m = 0.0
         self._searched_s = -math.inf
 
@@ -315,6 +314,7 @@ class PositionFix:
 
     @property
     def correction_ne(self) -> tuple[float, float]:
+        """What to add to the position estimate (m, map north and east), capped at the latest scan's bound."""
         c = self.estimate.correction
         norm = float(np.hypot(*c))
         k = 1.0 if norm <= self._limit_m or norm == 0.0 else self._limit_m / norm
@@ -353,6 +353,6 @@ class PositionFix:
         match = match_scan(self.surface, north_m, east_m, bearings_rad, half_width_rad, distances_m, max_range_m,
                            start_ne=self.estimate.correction, search_m=search,
                            turn_sigma_rad=math.hypot(HEADING_SIGMA_RAD, bearing_error_rad))
-        if match is not None and self.estimate.update(match, sigma):
-            self.matched += 1
+        if match is not None:
+            self.estimate.update(match, sigma)
         return match

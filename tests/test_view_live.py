@@ -17,6 +17,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -270,6 +271,19 @@ def test_the_feed_publishes_map_positions_speeds_plan_distance_and_events():
     assert message["plan"] == {"id": 1, "waypoints": [[0.0, 0.0, 5.0], [30.0, 0.0, 5.0], [30.0, 40.0, 5.0]]}
     assert message["events"]["items"][0]["text"] == "start: MANUAL -> WAYPOINT"
     assert message["track"]["items"] == [[1.0, 30.0, 0.0, 5.0]]
+
+
+def test_the_feed_shows_the_vehicle_where_the_missions_scan_matching_puts_it():
+    """With the estimate's drift corrected, the vehicle is drawn where the mission flies it, not at the raw
+    estimate (else it would sit beside the route and its obstacles by the correction)."""
+    hub, cursor = ViewHub(), _Cursor()
+    vehicle, mission = FakeVehicle(LocalNED(10.0, -5.0, 2.0)), FakeMission()
+    mission.sensing = SimpleNamespace(correction_ne=(1.5, -2.0))
+    feed = FlightFeed(hub, mission, vehicle, Geodetic(37.0, -122.0))
+    vehicle.telemetry.north_m, vehicle.telemetry.east_m, vehicle.telemetry.down_m = 20.0, 5.0, -7.0
+    feed.poll()
+    v = hub.update_for(cursor)["state"]["vehicle"]
+    assert (v["north_m"], v["east_m"], v["altitude_m"]) == (31.5, -2.0, 5.0)
 
 
 def test_a_replan_is_a_new_plan_and_discovered_obstacles_are_appended():

@@ -6,7 +6,8 @@ mission knows nothing of it, and nothing it does waits on a browser: the mission
 held up by the view.
 
 Positions are in the map frame: the autopilot's local NED position plus the vehicle's ``map_offset`` (taken once,
-as the mission does). Sensing and exploration work that keeps ``discovered_obstacles`` (``(N, 6)`` boxes),
+as the mission does) and the mission's scan-matching correction (``sensing.correction_ne``), as the mission
+flies. Sensing and exploration work that keeps ``discovered_obstacles`` (``(N, 6)`` boxes),
 ``known_area`` (a dict, see :mod:`skyroute.view.live`) or ``frontiers`` (``(F, 2)`` north/east points) as public
 attributes of the mission gets them drawn; a replan that replaces ``result.waypoints`` shows as a new plan.
 The mission keeps ``discovered_obstacles`` (the live layer's observed obstacle cells as 1 m boxes, see
@@ -140,7 +141,8 @@ class FlightFeed:
         if self._offset is None or not math.isfinite(t.north_m):
             return None
         o = self._offset
-        return LocalNED(t.north_m + o.north_m, t.east_m + o.east_m, t.down_m + o.down_m)
+        cn, ce = getattr(getattr(self.mission, "sensing", None), "correction_ne", (0.0, 0.0))
+        return LocalNED(t.north_m + o.north_m + cn, t.east_m + o.east_m + ce, t.down_m + o.down_m)
 
     def poll(self) -> None:
         """Read the mission and the vehicle once and publish what changed."""

@@ -31,6 +31,9 @@ log = logging.getLogger(__name__)
 
 #: PX4's velocity response (s, measured on SITL braking from 9 m/s): the braking rule was measured with it.
 PX4_RESPONSE_S = 0.6
+#: The sight cap's floor (m/s): slow enough to stop within 0.2 m, so the vehicle creeps on where nothing ahead is
+#: seen free rather than stand still (:meth:`ReplanningMixin._sight_cap_mps`).
+SIGHT_CREEP_MPS = 0.5
 
 
 class Blockage(Protocol):
@@ -407,7 +410,9 @@ class ReplanningMixin:
         the space seen free straight ahead (``seen_free_m`` of the obstacle map); ``inf`` when nothing limits it.
         A new obstacle can only stand where the sensor has not looked, and a wide sector (ArduPilot's 45 degrees)
         down a street reads the buildings beside it first: what stands behind them in that sector shows only once
-        it is the nearest thing there.
+        it is the nearest thing there. Never below ``SIGHT_CREEP_MPS`` (it stops from that within 0.2 m): where
+        nothing ahead will ever be seen free (past the map's edge, half a margin beyond a goal at that edge) a cap
+        of 0 held the vehicle still short of its goal until the leg timed out.
 
         The braking is :func:`braking_distance_m`'s, as for a replan's, with the autopilot's response beyond
         PX4's 0.6 s (``brake_lag_s``; ArduCopter's ~1 s) added to its reaction time: that rule was measured on
@@ -420,7 +425,9 @@ class ReplanningMixin:
         reaction = 0.3 + max(0.0, float(self.brake_lag_s) - PX4_RESPONSE_S)
         need = braking_distance_m(self.speeds.cruise_mps * 1.5, decel, reaction) + spare
         seen = float(seen_fn(p.north_m, p.east_m, direction_ne[0] / horizontal, direction_ne[1] / horizontal, need))
-        return math.inf if seen >= need else speed_to_stop_within_mps(seen - spare, decel, reaction)
+        if seen >= need:
+            return math.inf
+        return max(speed_to_stop_within_mps(seen - spare, decel, reaction), SIGHT_CREEP_MPS)
 
     def _replan_in_flight(self, blockage: Blockage) -> np.ndarray:
         """PATH_BLOCKED -> REPLANNING -> WAYPOINT: brake first if the vehicle cannot stop short of the obstacle,

@@ -17,6 +17,7 @@ are complete (a navigation log that ends with the outcome, a tlog). One JSON doc
 
     python bench/fault_campaign.py                       # 10 missions x 2 flights, SF map, speed-up 5
     python bench/fault_campaign.py --missions 4 --map colliders.csv --out /tmp/campaign.json
+    python bench/fault_campaign.py --autopilot ardupilot  # the same against the ArduPilot personality
 """
 
 from __future__ import annotations
@@ -103,7 +104,7 @@ def sim_fault_time_is_simulated() -> bool:
 
 
 def fly_once(mission: dict, mix: str, *, map_path: Path, speedup: float, seed: int, workdir: Path,
-             simulated_faults: bool) -> dict:
+             simulated_faults: bool, autopilot: str = "px4") -> dict:
     port = free_port()
     report_path = workdir / "report.json"
     # The mixes are what a real link does in real time. A sim whose faults run on its own clock at speed-up N
@@ -124,7 +125,7 @@ def fly_once(mission: dict, mix: str, *, map_path: Path, speedup: float, seed: i
     lat, lon = mission["start"]
     sim_cmd = [sys.executable, "-m", "sim", "--map", str(map_path), "--port", str(port), "--strict", "--speedup",
                f"{speedup:g}", "--start", f"{lat:.8f},{lon:.8f}", "--report", str(report_path), "--seed",
-               str(seed), "-q", *faults]
+               str(seed), "--autopilot", autopilot, "-q", *faults]
     sim = subprocess.Popen(sim_cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                            start_new_session=True)
     try:
@@ -201,11 +202,13 @@ def main(argv=None) -> int:
     parser.add_argument("--speedup", type=float, default=5.0, help="the sim's speed-up")
     parser.add_argument("--seed", type=int, default=1, help="seed for the missions and the sims")
     parser.add_argument("--mixes", nargs="+", default=list(MIXES), choices=list(MIXES), help="fault mixes to rotate")
+    parser.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
+                        help="the sim's personality (conventions, parameters, sensor messages)")
     parser.add_argument("--out", type=Path, default=None, help="write the flights as JSON here")
     args = parser.parse_args(argv)
     simulated = sim_fault_time_is_simulated()
-    print(f"map {args.map}, speed-up {args.speedup:g}, link faults in {'simulated' if simulated else 'wall-clock'}"
-          " time", flush=True)
+    print(f"map {args.map}, {args.autopilot} personality, speed-up {args.speedup:g}, link faults in "
+          f"{'simulated' if simulated else 'wall-clock'} time", flush=True)
     missions = pick_missions(args.map, args.missions, args.seed)
     flights = []
     with tempfile.TemporaryDirectory(prefix="skyroute-campaign-") as tmp:
@@ -214,7 +217,7 @@ def main(argv=None) -> int:
                 workdir = Path(tmp) / f"{k:03d}-{mix}"
                 workdir.mkdir()
                 flight = fly_once(mission, mix, map_path=args.map, speedup=args.speedup, seed=args.seed + k,
-                                  workdir=workdir, simulated_faults=simulated)
+                                  workdir=workdir, simulated_faults=simulated, autopilot=args.autopilot)
                 flight.update(mission=k, planned_m=round(mission["planned_m"], 1))
                 flights.append(flight)
                 print(f"mission {k} {mix:22s} exit {flight['exit']} landing error {flight['landing_error_m']:.2f} m "

@@ -99,10 +99,11 @@ def test_a_new_wall_the_map_lacks_does_not_pull_the_match():
     assert np.linalg.eigvalsh(m.information)[0] > 0
 
 
-def test_wide_sectors_and_too_few_readings_are_not_matched():
+def test_one_cycle_of_wide_sectors_and_too_few_readings_are_not_matched():
     surface = MapSurface(DEAD_END, ALT)
     eight = np.radians(np.arange(8) * 45.0)
     assert match_scan(surface, 0.0, 0.0, eight, math.radians(22.5), np.full(8, 10.0), 30.0) is None
+    assert match_scan(surface, 0.0, 0.0, eight, math.radians(30.0), np.full(8, 10.0), 30.0) is None  # too wide
     few = np.where(np.arange(72) < 5, 10.0, np.inf)
     assert match_scan(surface, 0.0, 0.0, BEARINGS, HALF, few, 30.0) is None
 
@@ -222,3 +223,52 @@ def test_a_heading_error_does_not_pass_for_a_shift(bundled):
     held = _constrained_errors(bundled, heading_error_rad=math.radians(3.0), turn_sigma_rad=1e-4)
     assert np.percentile(turned, 90) < 0.3
     assert np.percentile(held, 90) > 2.0 * np.percentile(turned, 90)
+
+
+def _eight_sectors(lo, hi, truth, heading):
+    """ArduPilot's proximity sectors at ``truth``: eight of 45 degrees from the heading, one reading each."""
+    d = sector_minima(lo, hi, truth[0], truth[1], 8, heading, 30.0)
+    return (heading + np.radians(45.0) * np.arange(8)) % (2 * math.pi), d
+
+
+def test_ardupilot_sectors_gathered_over_a_few_cycles_follow_a_drifting_estimate(bundled):
+    """One 45 degree sector per message, as ArduPilot sends them: the fix gathers a quarter of a second of them,
+    each placed where it was read, and matches them together. Measured (seeds 0, 2-4): corrected error median
+    0.55-0.74 m against 1.7 m uncorrected, beyond the stated bound 0.2-4.8 % of the time."""
+    fix = PositionFix(MapSurface(bundled, ALT))
+    crossing = (bundled[:, 2] - bundled[:, 5] <= ALT) & (bundled[:, 2] + bundled[:, 5] >= ALT)
+    lo, hi = bundled[crossing, :2] - bundled[crossing, 3:5], bundled[crossing, :2] + bundled[crossing, 3:5]
+    raw, fixed, beyond, matches, previous = [], [], 0, 0, None
+    for t, truth, estimate, _ in _route_scans(bundled, 2):
+        heading = 0.0 if previous is None else math.atan2(*(truth - previous))
+        previous = truth
+        bearings, d = _eight_sectors(lo, hi, truth, heading)
+        for k in range(8):  # the vehicle faces its way; each sector in its own message
+            matches += fix.observe(t + 0.001 * k, *estimate, bearings[k:k + 1], math.radians(22.5), d[k:k + 1],
+                                   30.0, SIGMAS * 1.5, bearing_error_rad=math.radians(3.0)) is not None
+        raw.append(math.dist(estimate, truth))
+        fixed.append(math.dist(estimate + np.array(fix.correction_ne), truth))
+        beyond += fixed[-1] > fix.bound_m
+    assert matches > 0.2 * len(raw)  # a match every few cycles
+    assert np.median(fixed) < 0.8 < 1.5 < np.median(raw)
+    assert beyond / len(fixed) < 0.05
+
+
+def test_single_sectors_are_matched_once_a_quarter_second_is_gathered_and_a_gap_starts_again():
+    surface = MapSurface(DEAD_END, ALT)
+    lo, hi = DEAD_END[:, :2] - DEAD_END[:, 3:5], DEAD_END[:, :2] + DEAD_END[:, 3:5]
+    bearings, d = _eight_sectors(lo, hi, np.array([0.0, 0.0]), 0.0)
+    half = math.radians(22.5)
+
+    def cycle(fix, t, placed_east=1.0):  # 10 Hz cycles of eight messages, 1 ms apart
+        return [fix.observe(t + 0.001 * k, 0.0, placed_east, bearings[k:k + 1], half, d[k:k + 1], 30.0, 3.0)
+                for k in range(8)]
+
+    fix = PositionFix(surface)
+    assert all(m is None for m in cycle(fix, 0.0) + cycle(fix, 0.1) + cycle(fix, 0.2))  # 0.207 s: not yet
+    fourth = cycle(fix, 0.3)
+    assert fourth[0] is not None and all(m is None for m in fourth[1:])  # 0.3 s: the 25 matched together
+    assert fourth[0].offset_ne[1] == pytest.approx(-1.0, abs=0.3)  # placed 1 m east: shifted back
+    fix = PositionFix(surface)
+    cycle(fix, 0.0)
+    assert all(m is None for m in cycle(fix, 5.0) + cycle(fix, 5.1) + cycle(fix, 5.2))  # a gap: from 5.0 again

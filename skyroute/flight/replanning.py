@@ -277,14 +277,13 @@ class Sensing:
         return True
 
     def _corrected(self, r, north_m: float, east_m: float, bearings: np.ndarray, position_error_m: float):
-        """A stamped reading's map position corrected by the fix (a whole scan matched first), and how far off
-        it may still be."""
+        """A stamped reading's map position corrected by the fix (matched first: a whole scan, or ArduPilot's
+        sectors gathered by the fix over a few cycles), and how far off it may still be."""
         fix = self.fix
-        if len(bearings) > 1:
-            t = float(getattr(r, "time_s", math.nan))
-            fix.observe(t if math.isfinite(t) else self.clock(), north_m, east_m, bearings, float(r.half_width_rad),
-                        np.asarray(r.distances_m, float), float(r.max_range_m), position_error_m,
-                        bearing_error_rad=float(getattr(r, "bearing_error_rad", 0.0)))
+        t = float(getattr(r, "time_s", math.nan))
+        fix.observe(t if math.isfinite(t) else self.clock(), north_m, east_m, bearings, float(r.half_width_rad),
+                    np.asarray(r.distances_m, float), float(r.max_range_m), position_error_m,
+                    bearing_error_rad=float(getattr(r, "bearing_error_rad", 0.0)))
         cn, ce = fix.correction_ne
         bound = fix.bound_m
         now = self.clock()

@@ -760,6 +760,40 @@ def test_arm_refused_then_accepted(clock):
     assert v.calls.count("prepare_flight") == 3  # the mode is selected again before each try
 
 
+class _DisarmsBeforeTakeoff(FakeVehicle):
+    """Disarms itself on the ground before the first ``disarms`` takeoff commands arrive and refuses them, as
+    ArduCopter does 10 s after arming (DISARM_DELAY) when the takeoff is held up."""
+
+    def __init__(self, clock, disarms=1, **kwargs):
+        super().__init__(clock, **kwargs)
+        self.disarms = disarms
+
+    def takeoff(self, altitude_m):
+        if self.disarms > 0:
+            self.disarms -= 1
+            self.telemetry.armed = False
+            raise Refused("MAV_CMD_NAV_TAKEOFF rejected: MAV_RESULT_FAILED")
+        return super().takeoff(altitude_m)
+
+
+def test_a_vehicle_that_disarmed_itself_before_the_takeoff_is_armed_again_and_takes_off(clock):
+    v = _DisarmsBeforeTakeoff(clock, start=(-100.0, 50.0))
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and v.calls.count("arm") == 2
+
+
+def test_a_takeoff_refused_while_armed_or_refused_again_and_again_ends_the_flight(clock):
+    v = _DisarmsBeforeTakeoff(clock, disarms=3)
+    with pytest.raises(m.MissionError, match="NAV_TAKEOFF rejected"):
+        make_mission(v, clock, straight_plan([])).run()
+    assert v.calls.count("arm") == 3  # armed again twice, then given up
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    v.fail_on["takeoff"] = Refused("MAV_CMD_NAV_TAKEOFF rejected: MAV_RESULT_DENIED")  # still armed: no retry
+    with pytest.raises(m.MissionError, match="NAV_TAKEOFF rejected"):
+        make_mission(v, clock, straight_plan([])).run()
+    assert v.calls.count("arm") == 1 and not v.telemetry.armed
+
+
 def test_arm_refused_until_timeout_quotes_the_autopilot(clock):
     v = FakeVehicle(clock, arm_refusals=10**6)
     mission = make_mission(v, clock, straight_plan([]), arm_timeout_s=10.0)

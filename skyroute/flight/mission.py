@@ -673,7 +673,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self._start_altitude_m = here.altitude_m
         self._takeoff_s, self._takeoff_autopilot_s = self.clock(), self._autopilot_time_s()
         self._sample(force=True)
-        self.vehicle.takeoff(altitude_m - here.altitude_m)
+        self._command_takeoff(altitude_m - here.altitude_m)
         self._say(f"taking off to {altitude_m:.1f} m")
         deadline = self.clock() + self.takeoff_timeout_s
         while self._map_position().altitude_m < altitude_m - self.altitude_tolerance_m:
@@ -682,6 +682,34 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             self._tick()
         log.info("takeoff done at %.1f m", self._map_position().altitude_m)
         self._fire(E.TAKEOFF_DONE)
+
+    def _command_takeoff(self, climb_m: float, retries: int = 2) -> None:
+        """Command the climb (m). An autopilot that disarmed itself on the ground since it armed (ArduCopter's
+        DISARM_DELAY, PX4's COM_DISARM_PRFLT: 10 s armed without taking off, reached when a lossy link held up
+        the commands between) refuses it: then arm again and repeat it, ``retries`` times at most. A fault
+        campaign's ArduPilot mission with 10 % loss ended on the ground that way, exit 1."""
+        for attempt in range(retries + 1):
+            try:
+                self.vehicle.takeoff(climb_m)
+                return
+            except self.vehicle_errors as exc:
+                if attempt == retries or not self.vehicle.link_ok or not self._disarmed_on_ground():
+                    raise
+                self._say(f"takeoff refused ({exc}): the autopilot disarmed itself on the ground; arming again")
+                self.vehicle.prepare_flight()
+                self.vehicle.arm()
+
+    def _disarmed_on_ground(self, wait_s: float = 1.5) -> bool:
+        """Whether the telemetry shows the vehicle disarmed on the ground within ``wait_s`` (s; a heartbeat comes
+        once a second)."""
+        deadline = self.clock() + wait_s
+        while True:
+            t = self.vehicle.telemetry
+            if not t.armed and t.on_ground:
+                return True
+            if self.clock() >= deadline:
+                return False
+            self.sleep(self.poll_s)
 
     def _follow(self, waypoints: np.ndarray) -> None:
         """Fly the rounded path through ``waypoints`` (see :func:`~.follower.steer`) and stop at the last one."""

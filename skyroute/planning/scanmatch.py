@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -162,8 +163,8 @@ def _residuals(surface: MapSurface, boxes: np.ndarray, north_m: float, east_m: f
     return r, g, turn
 
 
-def match_scan(surface: MapSurface, north_m: float, east_m: float, bearings_rad, half_width_rad: float,
-               distances_m, max_range_m: float, *, start_ne=(0.0, 0.0), search_m: float = 0.0,
+def match_scan(surface: MapSurface, north_m: float | np.ndarray, east_m: float | np.ndarray, bearings_rad,
+               half_width_rad: float, distances_m, max_range_m: float, *, start_ne=(0.0, 0.0), search_m: float = 0.0,
                inlier_m: float = 1.5, sigma_m: float = 0.4, turn_sigma_rad: float = HEADING_SIGMA_RAD,
                iterations: int = 8) -> Match | None:
     """Fit one scan taken at the map position ``(north_m, east_m)`` (or readings taken at several: arrays, one
@@ -313,6 +314,20 @@ class DriftEstimate:
         return math.sqrt(max(float(np.linalg.eigvalsh(self.covariance)[-1]), 0.0))
 
 
+class _Reading(NamedTuple):
+    """One message's readings, as :meth:`PositionFix.observe` got them."""
+
+    time_s: float
+    north_m: float
+    east_m: float
+    bearings_rad: np.ndarray
+    half_width_rad: float
+    distances_m: np.ndarray
+    max_range_m: float
+    position_error_m: float
+    bearing_error_rad: float
+
+
 class PositionFix:
     """Scan matching against ``surface`` and the drift estimate, fed one scan at a time (:meth:`observe`).
 
@@ -326,7 +341,7 @@ class PositionFix:
         self.search_every_s = float(search_every_s)
         self._limit_m = 0.0
         self._searched_s = -math.inf
-        self._gathered: list[tuple] = []  # single-sector readings waiting to be matched together
+        self._gathered: list[_Reading] = []  # single-sector readings waiting to be matched together
 
     @property
     def active(self) -> bool:
@@ -367,17 +382,20 @@ class PositionFix:
             return self._match(time_s, north_m, east_m, bearings, half_width_rad, distances_m, max_range_m,
                                position_error_m, bearing_error_rad)
         g = self._gathered
-        if g and (g[0][4] != half_width_rad or g[0][6] != max_range_m or not 0.0 <= time_s - g[0][0] < 2 * GATHER_S):
+        if g and (g[0].half_width_rad != half_width_rad or g[0].max_range_m != max_range_m
+                  or not 0.0 <= time_s - g[0].time_s < 2 * GATHER_S):
             g.clear()  # another sensor, or a gap in the stream: start again
-        g.append((time_s, north_m, east_m, bearings, half_width_rad, np.atleast_1d(np.asarray(distances_m, float)),
-                  max_range_m, position_error_m, bearing_error_rad))
-        if time_s - g[0][0] < GATHER_S:
+        g.append(_Reading(time_s, north_m, east_m, bearings, half_width_rad,
+                          np.atleast_1d(np.asarray(distances_m, float)), max_range_m, position_error_m,
+                          bearing_error_rad))
+        if time_s - g[0].time_s < GATHER_S:
             return None
         self._gathered = []
-        counts = [len(r[3]) for r in g]
-        return self._match(time_s, np.repeat([r[1] for r in g], counts), np.repeat([r[2] for r in g], counts),
-                           np.concatenate([r[3] for r in g]), half_width_rad, np.concatenate([r[5] for r in g]),
-                           max_range_m, max(r[7] for r in g), max(r[8] for r in g))
+        counts = [len(r.bearings_rad) for r in g]
+        return self._match(time_s, np.repeat([r.north_m for r in g], counts), np.repeat([r.east_m for r in g], counts),
+                           np.concatenate([r.bearings_rad for r in g]), half_width_rad,
+                           np.concatenate([r.distances_m for r in g]), max_range_m,
+                           max(r.position_error_m for r in g), max(r.bearing_error_rad for r in g))
 
     def _match(self, time_s: float, north_m, east_m, bearings: np.ndarray, half_width_rad: float, distances_m,
                max_range_m: float, position_error_m: float, bearing_error_rad: float) -> Match | None:

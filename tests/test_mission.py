@@ -308,6 +308,16 @@ def test_steer_under_a_speed_cap_below_the_schedule_commands_the_cap_and_no_lead
     assert np.linalg.norm(fw.steer(path, speed_cap_mps=0.0, **kwargs).velocity) == 0.0
 
 
+def test_steer_under_a_speed_cap_still_aims_where_the_vehicle_will_be_when_a_slow_link_delivers():
+    # the same, with 0.4 s of the 0.6 s lead the link's round trip: the target no lead beyond that, but that much
+    path = fp.smooth_path(np.array([[0.0, 0.0, 10.0], [100.0, 0.0, 10.0]]), cruise_mps=10.0, accel_mps2=3.0)
+    kwargs = dict(s_m=20.0, ref_s_m=0.0, position=(20.0, 0.0, 10.0), velocity=(4.0, 0.0, 0.0), accel_mps2=3.0,
+                  velocity_lag_s=0.0, heading_rad=0.0, ahead_s=0.6, speed_cap_mps=5.0)
+    assert fw.steer(path, delay_s=0.4, **kwargs).position[0] == pytest.approx(20.0 + 4.0 * 0.4)
+    assert fw.steer(path, delay_s=0.0, **kwargs).position[0] == pytest.approx(20.0)  # behind it by then: a drag
+    assert fw.steer(path, delay_s=0.4, **{**kwargs, "speed_cap_mps": 12.0}).position[0] == pytest.approx(22.4)
+
+
 class CoastLimits:
     """ArduCopter-like: 3 s of coasting on the last velocity, then braking at 2.5 m/s^2."""
 

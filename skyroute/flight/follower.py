@@ -70,7 +70,8 @@ def feedforward_cap_mps(limits: Limits | None, clearance_fn: ClearanceFn | None,
 def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, ahead_s: float,
           accel_mps2: float, velocity_lag_s: float, heading_rad: float, limits: Limits | None = None,
           clearance_fn: ClearanceFn | None = None, previous_mps: float = 0.0, dt_s: float = 0.0,
-          max_lead_mps: float = 2.0, brake_lag_s: float = 0.0, speed_cap_mps: float = math.inf) -> Setpoint:
+          max_lead_mps: float = 2.0, brake_lag_s: float = 0.0, speed_cap_mps: float = math.inf,
+          delay_s: float = 0.0) -> Setpoint:
     """The setpoint for a vehicle at ``position`` (map n, e, alt) moving at ``velocity`` (map n, e, up) that has
     reached arc length ``s_m``; ``ref_s_m`` is the previous setpoint's (setpoints never go back along the path).
 
@@ -82,7 +83,10 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
 
     ``speed_cap_mps`` caps the feed-forward (the mission's sensing limit,
     :meth:`~.replanning.ReplanningMixin._sight_cap_mps`; a vehicle over it is told as much under it); where it is
-    below the schedule the target has no lead.
+    below the schedule the target has no lead beyond ``delay_s`` (the part of ``ahead_s`` that is the link's round
+    trip and the poll: where the vehicle will be when the setpoint reaches it; a target behind that, 400 ms of
+    round trip at 3-9 m/s, held an ArduPilot vehicle under its wide sectors' cap to 2-3 m/s, 1.9x the airborne
+    time).
 
     The feed-forward's direction is the path's ``velocity_lag_s`` ahead (the autopilot's velocity loop takes
     about that long to turn); its speed is the schedule's ``max(velocity_lag_s, brake_lag_s)`` ahead, so an
@@ -92,7 +96,8 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
     capped = speed_cap_mps < path.speed_at(s_m)  # the cap, not the schedule, sets the speed here
     # A capped vehicle gets no lead: a target ahead of it is what its position loop chases, on top of the
     # feed-forward, and would keep a vehicle that must slow down at its speed
-    predicted = np.asarray(position, float) + (0.0 if capped else np.asarray(velocity, float) * ahead_s)
+    predicted = np.asarray(position, float) + np.asarray(velocity, float) * (min(delay_s, ahead_s) if capped
+                                                                            else ahead_s)
     ref_s = path.project(predicted, max(s_m, ref_s_m))
     remaining_m = path.length_m - s_m
     if remaining_m <= FINAL_APPROACH_M or speed**2 / (2 * accel_mps2) > 2.0 * remaining_m + FINAL_APPROACH_M:

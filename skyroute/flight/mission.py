@@ -749,14 +749,16 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             t = self.vehicle.telemetry
             velocity = (t.local_v_north_mps, t.local_v_east_mps, -t.local_v_down_mps)
             rate = self._autopilot_rate()
-            ahead_s = (self.lead_s + rate * (self.poll_s + float(getattr(self.vehicle, "round_trip_s", 0.0))))
+            delay_s = rate * (self.poll_s + float(getattr(self.vehicle, "round_trip_s", 0.0)))
+            ahead_s = self.lead_s + delay_s
             now = self.clock()
             sp = follower.steer(path, s_m=self._progress_s, ref_s_m=ref_s, position=(p.north_m, p.east_m,
                                 p.altitude_m), velocity=velocity, ahead_s=ahead_s, accel_mps2=s.accel_mps2,
                                 velocity_lag_s=self.velocity_lag_s, brake_lag_s=self.brake_lag_s,
                                 heading_rad=heading, limits=self.limits,
                                 clearance_fn=self.clearance_fn, previous_mps=ff_mps, dt_s=rate * (now - ff_at),
-                                speed_cap_mps=self._sight_cap_mps(p, path.point_at(self._progress_s)[1]))
+                                speed_cap_mps=self._sight_cap_mps(p, path.point_at(self._progress_s)[1]),
+                                delay_s=delay_s)
             ref_s, heading = sp.ref_s, sp.heading_rad
             ff_mps, ff_at = (0.0 if sp.velocity is None else float(np.linalg.norm(sp.velocity))), now
             position = sp.position

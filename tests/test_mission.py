@@ -792,6 +792,24 @@ def test_a_vehicle_that_disarmed_itself_before_the_takeoff_is_armed_again_and_ta
     assert result.completed and v.calls.count("arm") == 2
 
 
+class _TakeoffAnswerLost(FakeVehicle):
+    """Takes off on the first command but its answer is lost; the repeat is refused, as ArduCopter refuses a
+    takeoff when already flying."""
+
+    def takeoff(self, altitude_m):
+        if "takeoff" in self.calls:
+            raise Refused("MAV_CMD_NAV_TAKEOFF rejected: MAV_RESULT_FAILED")
+        self.calls.append("takeoff")
+        super().takeoff(altitude_m)
+        raise Refused("MAV_CMD_NAV_TAKEOFF rejected: MAV_RESULT_FAILED")  # the repeat's answer, the first lost
+
+
+def test_a_takeoff_whose_answer_was_lost_and_whose_repeat_was_refused_goes_on_when_the_vehicle_climbs(clock):
+    v = _TakeoffAnswerLost(clock, start=(-100.0, 50.0))
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and v.calls.count("arm") == 1
+
+
 def test_a_takeoff_refused_while_armed_or_refused_again_and_again_ends_the_flight(clock):
     v = _DisarmsBeforeTakeoff(clock, disarms=3)
     with pytest.raises(m.MissionError, match="NAV_TAKEOFF rejected"):

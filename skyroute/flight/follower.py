@@ -94,8 +94,8 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
     """
     speed = float(np.linalg.norm(velocity))
     capped = speed_cap_mps < path.speed_at(s_m)  # the cap, not the schedule, sets the speed here
-    # A capped vehicle gets no lead: a target ahead of it is what its position loop chases, on top of the
-    # feed-forward, and would keep a vehicle that must slow down at its speed
+    # A capped vehicle gets no lead beyond the link's delay: a target ahead of it is what its position loop chases,
+    # on top of the feed-forward, and would keep a vehicle that must slow down at its speed
     predicted = np.asarray(position, float) + np.asarray(velocity, float) * (min(delay_s, ahead_s) if capped
                                                                             else ahead_s)
     ref_s = path.project(predicted, max(s_m, ref_s_m))

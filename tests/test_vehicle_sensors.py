@@ -123,6 +123,28 @@ def test_feed_places_a_scan_where_the_vehicle_was_at_the_scans_own_time():
     assert kept.local_ne == (12.5, -3.0) and kept.local_down_m == -4.5
 
 
+def _measured(readings):
+    """The readings an autopilot sent, without the never-sent proximity sectors read as empty."""
+    return [r for r in readings if not np.isinf(r.distances_m).all()]
+
+
+def test_proximity_sectors_never_sent_read_empty_and_those_that_dropped_out_stay_unknown():
+    # ArduPilot sends a sector only once it has had a valid reading: at 1.0 s the nose (8.5 m) and the right (10 m)
+    feed = SensorFeed()
+    for orientation, cm in ((M.MAV_SENSOR_ROTATION_NONE, 850), (M.MAV_SENSOR_ROTATION_YAW_90, 1000)):
+        feed.handle(_wire(M.MAVLink_distance_sensor_message(1000, 20, 3000, cm, 0, 10, orientation, 0)), 1.0,
+                    math.radians(90.0))
+    assert len(feed.drain()) == 2  # what the rest of that sample holds is known once the next one starts
+    # at 1.1 s only the right: the six never sent in the first sample are empty (nose east: 90 and 180 were sent)
+    for time_ms in (1100, 1200):
+        feed.handle(_wire(M.MAVLink_distance_sensor_message(time_ms, 20, 3000, 1000, 0, 10,
+                                                            M.MAV_SENSOR_ROTATION_YAW_90, 0)), 1.1, math.radians(90.0))
+        got = feed.drain()
+        empty = sorted(round(math.degrees(r.bearings_rad[0])) for r in got if np.isinf(r.distances_m).all())
+        assert len(_measured(got)) == 1 and empty == [0, 45, 135, 225, 270, 315]  # the nose (90) dropped out
+        assert all(r.time_s == pytest.approx(time_ms / 1000.0 - 0.1) for r in got if np.isinf(r.distances_m).all())
+
+
 def test_heading_relative_sectors_are_dropped_while_the_vehicle_yaws_fast_and_kept_once_it_holds():
     feed = SensorFeed()
 
@@ -136,7 +158,7 @@ def test_heading_relative_sectors_are_dropped_while_the_vehicle_yaws_fast_and_ke
     feed.handle(sector(1800), 1.8, math.radians(18.0))  # held for 0.6 s
     north = _obstacle_distance([1000] * 72)  # north-aligned scans never depend on the heading
     feed.handle(north, 1.9, math.radians(18.0))
-    assert not feed.turning and len(feed.drain()) == 3
+    assert not feed.turning and len(_measured(feed.drain())) == 3
 
 
 def test_a_heading_relative_sector_is_turned_by_the_heading_at_its_own_time_with_a_small_allowance():
@@ -144,16 +166,16 @@ def test_a_heading_relative_sector_is_turned_by_the_heading_at_its_own_time_with
     feed = SensorFeed()
     sector = _wire(M.MAVLink_distance_sensor_message(1100, 20, 3000, 850, 0, 10, M.MAV_SENSOR_ROTATION_NONE, 0))
     feed.handle(sector, 1.15, math.radians(90.0), heading_time_s=1.0, yaw_rate_rad_s=math.radians(20.0))
-    (scan,) = feed.drain()
+    (scan,) = _measured(feed.drain())
     assert math.degrees(scan.bearings_rad[0]) == pytest.approx(92.0)
     assert math.degrees(scan.bearing_error_rad) == pytest.approx(3.0 + 20.0 * 0.2)  # not the blind 15 degrees
     held = _wire(M.MAVLink_distance_sensor_message(2000, 20, 3000, 850, 0, 10, M.MAV_SENSOR_ROTATION_NONE, 0))
     feed.handle(held, 2.05, math.radians(90.0), heading_time_s=2.0, yaw_rate_rad_s=0.0)
-    (steady,) = feed.drain()
+    (steady,) = _measured(feed.drain())
     assert math.degrees(steady.bearing_error_rad) == pytest.approx(3.0)
     # without the heading's time (or a second apart: another clock) the latest heading stands, with 15 degrees
     feed.handle(held, 2.1, math.radians(90.0))
     feed.handle(held, 2.2, math.radians(90.0), heading_time_s=0.5, yaw_rate_rad_s=0.0)
-    for blind in feed.drain():
+    for blind in _measured(feed.drain()):
         assert math.degrees(blind.bearings_rad[0]) == pytest.approx(90.0)
         assert math.degrees(blind.bearing_error_rad) == pytest.approx(15.0)

@@ -201,6 +201,22 @@ def translate_sensor(msg, received_s: float, heading_rad: float) -> RangeScan | 
     return None
 
 
+@dataclass(frozen=True)
+class _Sector:
+    """A proximity sector as queued, with the orientation it came with."""
+
+    scan: RangeScan
+    orientation: int
+
+    @property
+    def time_s(self) -> float:
+        return self.scan.time_s
+
+    @property
+    def bearings_rad(self) -> np.ndarray:
+        return self.scan.bearings_rad
+
+
 class SensorFeed:
     """Thread-safe queue of sensor readings: the link's reader calls :meth:`handle`, the mission :meth:`drain`.
 
@@ -222,6 +238,8 @@ class SensorFeed:
         self.turning_dropped = 0
         self._heading: tuple[float, float] | None = None  # (heading_rad, time_s) when it last changed
         self._yaw_rate_rad_s = 0.0
+        self._sectors_sent: set[int] = set()  # proximity orientations (DISTANCE_SENSOR) seen so far
+        self._sample_first: _Sector | None = None  # the first proximity sector of the latest sample
 
     #: Above this yaw rate (rad/s) heading-relative sectors are dropped: the heading that turns them lags.
     MAX_YAW_RATE_RAD_S = math.radians(30.0)
@@ -293,17 +311,41 @@ class SensorFeed:
         if isinstance(reading, RangeScan) and horizontal_accuracy_m > 0:  # False while NaN
             reading = dataclasses.replace(reading,
                                           position_error_m=POSITION_ERROR_PER_ACCURACY * float(horizontal_accuracy_m))
+        readings = [reading]
+        if isinstance(reading, RangeScan) and reading.source == "DISTANCE_SENSOR":
+            readings += self._never_sent(msg.orientation, reading)
         with self._cond:
-            if isinstance(reading, HeightReading):
-                self.height = reading
-            else:
-                self.scans += 1
-                self.last_scan_s = received_s
-            if len(self._queue) == self._queue.maxlen:
-                self.dropped += 1
-            self._queue.append(reading)
+            for r in readings:
+                if isinstance(r, HeightReading):
+                    self.height = r
+                else:
+                    self.scans += 1
+                    self.last_scan_s = received_s
+                if len(self._queue) == self._queue.maxlen:
+                    self.dropped += 1
+                self._queue.append(r)
             self._cond.notify_all()
         return True
+
+    def _never_sent(self, orientation: int, reading: RangeScan) -> list[RangeScan]:
+        """ArduPilot sends a proximity sector only once it has had a valid reading (``proximity_ever_valid_bitmask``
+        in ``GCS_MAVLINK::send_proximity``): a sector never sent while others come has had nothing within range.
+        When the first sector of a new sample arrives, the sectors never sent by the end of the one before are
+        returned as empty (``inf``), placed and stamped as that sample's first sector. Without this, open ground
+        ahead stayed unknown and the sight cap held the vehicle at a crawl (a fault-campaign mission with nothing
+        within 30 m to the north: 713 m in 559 s; before the crawl floor it never moved). A sector sent before and
+        missing now dropped out: it stays unknown."""
+        out: list[RangeScan] = []
+        first = self._sample_first
+        if first is None or reading.time_s != first.time_s:
+            if first is not None:
+                nose = first.bearings_rad[0] - math.radians(_YAW_ORIENTATIONS[first.orientation])
+                out = [dataclasses.replace(first.scan, bearings_rad=np.array([(nose + math.radians(deg)) % _TWO_PI]),
+                                           distances_m=np.array([math.inf]))
+                       for o, deg in _YAW_ORIENTATIONS.items() if o not in self._sectors_sent]
+            self._sample_first = _Sector(reading, orientation)
+        self._sectors_sent.add(orientation)
+        return out
 
     def drain(self) -> list[RangeScan | HeightReading]:
         """Every reading queued since the last call, oldest first."""

@@ -230,7 +230,9 @@ def test_gps_drift_does_not_turn_the_maps_own_streets_into_obstacles(start_sim, 
     assert report["min_clearance_m"] >= 1.0
     assert _landed_from_goal_m(report, GOAL_NEAR_7) <= math.hypot(4.5, 4.5)  # the estimate's error: 3 sigma a side
     replans = _navlog(tmp_path).count("replan: path")
-    assert replans <= 3, out
+    # 0-2 as a rule; 4 in one loaded CI run, after an early match put the correction 3 m off for a second (PX4):
+    # taking the map's buildings for new obstacles closed the streets with dozens
+    assert replans <= 5, out
     landed_m = _landed_from_goal_m(report, GOAL_NEAR_7)
     print(f"\n{autopilot} with 1.5 m GPS drift: {replans} replans, landed {landed_m:.2f} m from the goal, "
           f"clearance {report['min_clearance_m']:.2f} m")

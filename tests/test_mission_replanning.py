@@ -23,7 +23,7 @@ from skyroute.planning.grid import GridMap
 from skyroute.planning.livemap import LiveMap
 from skyroute.planning.replan import GoalUnreachable, Replanner
 
-from .test_mission import OFFSET, FakeClock, FakeVehicle, make_mission
+from .test_mission import OFFSET, FakeClock, FakeVehicle, make_mission, straight_plan
 
 ALT, SAFETY = 10.0, 3.0
 #: Four 60 m blocks in a 2 x 2 grid, 20 m streets between and round them; posts fix a 200 m extent.
@@ -474,3 +474,29 @@ def test_scans_matched_to_the_map_bring_a_drifted_estimate_back_onto_the_route(m
         assert landed_m == pytest.approx(2.0, abs=0.3)
         street = truth[(truth[:, 0] > -60.0) & (truth[:, 0] < 60.0)]
         assert np.median(_off_route_m(street, result.waypoints[:, :2])) == pytest.approx(2.0, abs=0.3)
+
+
+
+def _route(*points):
+    pts = np.array(points, float)
+    return SimpleNamespace(waypoints=np.column_stack([pts, np.full(len(pts), ALT), np.zeros(len(pts))]), plan_ms=0.1)
+
+
+def test_a_new_route_is_taken_on_the_fly_only_when_the_vehicle_can_slow_down_for_its_corners():
+    """At 12 m/s (the mission brakes at 3 m/s^2: 24 m to stop), flying north: a new route straight on
+    with its first corner 60 m ahead is taken as it is, even when the vehicle could not have stopped short of the
+    obstacle on its old path (a wall followed to its visible end, seen a piece at a time: a held-out flight on SF
+    stopped 4 times in 20 s when each new piece made it brake to a stop); one turning 90 degrees 10 m ahead is not
+    (it could only cut that corner): the vehicle brakes first."""
+    clock = FakeClock()
+    v = FakeVehicle(clock)
+    mission = make_mission(v, clock, straight_plan([]))
+    v.telemetry.local_v_north_mps, v.telemetry.local_v_east_mps = 12.0, 0.0
+    far_corner = _route((0.0, 0.0), (60.0, 0.0), (60.0, 40.0))
+    near_corner = _route((0.0, 0.0), (10.0, 0.0), (10.0, 40.0))
+    assert mission._slows_in_time(12.0, (0.0, 0.0), far_corner.waypoints)
+    assert not mission._slows_in_time(12.0, (0.0, 0.0), near_corner.waypoints)
+    assert mission._slows_in_time(2.0, (0.0, 0.0), near_corner.waypoints)
+    assert mission._turn_onto(far_corner, (0.0, 0.0), None, stops_short=False) == (far_corner, None)
+    assert mission._turn_onto(near_corner, (0.0, 0.0), None, stops_short=True) is None
+    assert not mission._slows_in_time(12.0, (0.0, 0.0), _route((0.0, 0.0), (15.0, 0.0)).waypoints)  # the goal

@@ -6,10 +6,11 @@ the autopilot streams obstacle data), and the command line injects an :class:`Ob
 ``Replanner``: a live occupancy layer over the planning grid and the replanning on it). :class:`Sensing` joins the
 two each poll: it feeds every horizontal reading to the map at the vehicle's map position and checks the rest of
 the path; the mission turns a blockage into PATH_BLOCKED -> REPLANNING -> WAYPOINT (see ``states``), braking to a
-hold first when the vehicle could not stop short of the obstacle (:func:`can_turn_in_time`). Once the new route's
-first setpoint is out, the map's refinement under its stale-map prior (``refine_job``) runs on a worker thread and,
-if it finds a better route that is still clear when it is done, the vehicle switches to it (no new event: the
-state stays WAYPOINT; the replan's record keeps the refined route).
+hold first when the vehicle could not stop short of the obstacle (:func:`can_turn_in_time`) unless the new route
+runs on the way it flies with room to slow down for its corners, or when it cannot turn onto the new route. Once
+the new route's first setpoint is out, the map's refinement under its stale-map prior (``refine_job``) runs on a
+worker thread and, if it finds a better route that is still clear when it is done, the vehicle switches to it
+(no new event: the state stays WAYPOINT; the replan's record keeps the refined route).
 
 Latency: a :class:`ReplanRecord`'s ``latency_ms`` runs from the arrival of the oldest reading of the poll that
 found the blockage (our monotonic clock, stamped by the link's reader) to the first setpoint of the new path, or
@@ -26,6 +27,8 @@ from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
+
+from .path import smooth_path
 
 log = logging.getLogger(__name__)
 
@@ -443,12 +446,10 @@ class ReplanningMixin:
             raise _abort(f"{self.max_replans} replans and still blocked")
         t = self.vehicle.telemetry
         speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
-        braked = not can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m)
-        if braked:
-            log.info("braking first: %.1f m/s needs %.1f m to stop at %.1f m/s^2, %.1f m ahead (%s)", speed,
-                     braking_distance_m(speed, self.speeds.accel_mps2), self.speeds.accel_mps2, blockage.along_m,
-                     blockage.reason)
-            self._brake()
+        # The vehicle may stop short of the obstacle on the old path; if not, it still need not stop when the new
+        # route leads straight on, away from the obstacle, slowly enough ahead (:meth:`_turn_onto`)
+        stops_short = can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m)
+        braked = False
         target = self._target_ne
         lead_in = self._lead_in_ne = None
         while True:
@@ -469,10 +470,14 @@ class ReplanningMixin:
                 log.info("looked again: the goal can be reached after all")
             if braked:
                 break
-            turn = self._turn_onto(route, here, target)
+            turn = self._turn_onto(route, here, target, stops_short)
             if turn is not None:
                 route, lead_in = turn
                 break
+            if not stops_short:
+                log.info("braking first: %.1f m/s needs %.1f m to stop at %.1f m/s^2, %.1f m ahead (%s)", speed,
+                         braking_distance_m(speed, self.speeds.accel_mps2), self.speeds.accel_mps2,
+                         blockage.along_m, blockage.reason)
             braked = True
             self._brake()  # and plan again from where it stopped
         self._lead_in_ne = lead_in
@@ -490,20 +495,29 @@ class ReplanningMixin:
         obstacles = self.sensing.obstacles
         return obstacles.replan(position_ne) if target is None else obstacles.route_to(position_ne, target)
 
-    def _turn_onto(self, route: Route, here, target):
+    def _turn_onto(self, route: Route, here, target, stops_short: bool = True):
         """Whether the moving vehicle can take ``route`` (from ``here``) as it is: ``(route, None)`` when it can turn
-        onto its first leg at once, ``(route from a lead-in point, the point)`` when it must first fly straight on
-        to slow down (:func:`turn_lead_in_m`) and that leg is free (margins included: a lead-in into the margin
-        of the obstacle just seen would be found blocked again at the next poll) and a route from its end exists,
-        None when it must brake to a stop first. Without this, a new route turning sharply from the vehicle's
-        motion starts with a corner the vehicle can only cut (measured: 2.1 m from a pole with a 5 m margin,
-        ArduPilot in wind)."""
+        onto its first leg at once and slow down in time for every corner of the new route (:meth:`_slows_in_time`),
+        ``(route from a lead-in point, the point)`` when it must first fly straight on to slow down
+        (:func:`turn_lead_in_m`), it could stop short of the obstacle on the old path (``stops_short``), and that
+        leg is free (margins included: a lead-in into the margin of the obstacle just seen would be found blocked
+        again at the next poll) and a route from its end exists; None when it must brake to a stop first. Without
+        this, a new route turning sharply from the vehicle's motion starts with a corner the vehicle can only cut
+        (measured: 2.1 m from a pole with a 5 m margin, ArduPilot in wind). A vehicle that could not stop short of
+        the obstacle on the old path need not stop either when the new route runs on the way it flies: past the
+        visible end of a wall it follows, a brake to a stop at every new piece of the wall cost a held-out flight
+        4 stops in 20 s."""
         t = self.vehicle.telemetry
         velocity = np.array([t.local_v_north_mps, t.local_v_east_mps], float)
         speed = float(np.hypot(*velocity))
         lead = self._lead_in_m(velocity, here, route.waypoints)
         if lead <= 0.0:
-            return route, None
+            if self._slows_in_time(speed, here, route.waypoints):
+                return route, None
+            log.info("the new route turns sooner than %.1f m/s can slow down for: braking first", speed)
+            return None
+        if not stops_short:
+            return None
         point = (here[0] + velocity[0] / speed * lead, here[1] + velocity[1] / speed * lead)
         free = getattr(self.sensing.obstacles, "segment_free", None)
         if free is not None and free(here, point):
@@ -517,6 +531,27 @@ class ReplanningMixin:
         log.info("turning onto the new route at %.1f m/s needs %.0f m straight on, not free: braking first",
                  speed, lead)
         return None
+
+    def _slows_in_time(self, speed_mps: float, start_ne, waypoints: np.ndarray, tolerance_m: float = 1.0) -> bool:
+        """Whether a vehicle at ``speed_mps`` leaving ``start_ne`` along the first leg of ``waypoints`` (map frame)
+        can brake, at the mission's deceleration, to every part of the rounded path slower than its cruise (its
+        corners, the end) before it gets there (within ``tolerance_m``): whether it is no faster than the path's
+        own speed schedule asks for where it starts. The follower tells the autopilot to brake its response time
+        early (PX4's); a slower autopilot's response beyond that is added as a reaction time."""
+        if speed_mps < 0.5:
+            return True
+        s = self.speeds
+        wps = np.array(waypoints, dtype=float)[:, :3]
+        wps[0, :2] = start_ne[0], start_ne[1]
+        wps[np.isnan(wps[:, 2]), 2] = self.altitude_m
+        path = smooth_path(wps, corner_cut_m=self.corner_cut_m, cruise_mps=s.cruise_mps, accel_mps2=s.accel_mps2,
+                           lateral_accel_mps2=s.lateral_accel_mps2, vertical_mps=s.vertical_mps)
+        limits = np.append(path.segment_speed_mps, 0.0)
+        starts = np.append(path.s_m[:-1], path.length_m)
+        slower = (limits < speed_mps) & (limits < s.cruise_mps - 1e-6)  # corners and the end, not the cruise
+        reaction = max(0.0, float(self.brake_lag_s) - PX4_RESPONSE_S)
+        need = speed_mps * reaction + (speed_mps**2 - limits[slower] ** 2) / (2.0 * max(s.accel_mps2, 1e-6))
+        return bool(np.all(need <= starts[slower] + tolerance_m))
 
     def _lead_in_m(self, velocity_ne: np.ndarray, start_ne, waypoints: np.ndarray) -> float:
         """:func:`turn_lead_in_m` for a vehicle moving at ``velocity_ne`` onto the first leg of ``waypoints``

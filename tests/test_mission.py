@@ -810,6 +810,32 @@ def test_a_takeoff_whose_answer_was_lost_and_whose_repeat_was_refused_goes_on_wh
     assert result.completed and v.calls.count("arm") == 1
 
 
+class _TakeoffAnswerLostWhileRetrying(_TakeoffAnswerLost):
+    """The link retries the takeoff for its ACK (5 s) while the vehicle climbs to its altitude; the repeat is
+    refused."""
+
+    retried = False
+
+    def takeoff(self, altitude_m):
+        try:
+            super().takeoff(altitude_m)
+        finally:
+            if not self.retried:
+                self.retried = True
+                self.clock.sleep(5.0)
+
+
+def test_a_liftoff_unseen_behind_a_lost_takeoff_answer_still_gives_an_airborne_time(clock):
+    """The vehicle was in the air before the mission could look (it had liftoff NaN and said "airborne nan s"): the
+    airborne time is then counted from the takeoff command, in the autopilot's clock."""
+    v = _TakeoffAnswerLostWhileRetrying(clock, start=(-100.0, 50.0))
+    clock.tickers.append(lambda dt: setattr(v.telemetry, "local_time_s", 10.0 * clock.now))
+    v.telemetry.local_time_s = 0.0
+    result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and math.isfinite(result.airborne_s)
+    assert result.airborne_s == pytest.approx(result.flight_time_s) and result.airborne_s > 10.0 * 5.0
+
+
 def test_a_takeoff_refused_while_armed_or_refused_again_and_again_ends_the_flight(clock):
     v = _DisarmsBeforeTakeoff(clock, disarms=3)
     with pytest.raises(m.MissionError, match="NAV_TAKEOFF rejected"):

@@ -45,6 +45,8 @@ class LandingMixin:
         r.airborne_s = now_autopilot - self._liftoff_autopilot_s
         if not math.isfinite(r.flight_time_s):  # no autopilot clock: our own
             r.flight_time_s = r.airborne_s = self.clock() - self._takeoff_s
+        elif not math.isfinite(r.airborne_s):  # liftoff unseen (it came while a lost takeoff ACK was retried)
+            r.airborne_s = r.flight_time_s
         r.flown_length_m = path_length_m(np.array(self._track)[:, 1:])
         p = self._map_position()
         goal = self.goal_ne if self.goal_ne is not None else (tuple(r.waypoints[-1, :2]) if len(r.waypoints) else None)

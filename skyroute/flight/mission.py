@@ -721,6 +721,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                 return "disarmed"
             if self.clock() >= deadline:
                 return None
+            self._sample()  # the liftoff may come now
             self.sleep(self.poll_s)
 
     def _follow(self, waypoints: np.ndarray) -> None:

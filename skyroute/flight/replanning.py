@@ -536,8 +536,8 @@ class ReplanningMixin:
         """Whether a vehicle at ``speed_mps`` leaving ``start_ne`` along the first leg of ``waypoints`` (map frame)
         can brake, at the mission's deceleration, to every part of the rounded path slower than its cruise (its
         corners, the end) before it gets there (within ``tolerance_m``): whether it is no faster than the path's
-        own speed schedule asks for where it starts. The follower tells the autopilot to brake its response time
-        early (PX4's); a slower autopilot's response beyond that is added as a reaction time."""
+        own speed schedule asks for where it starts. No reaction time: the follower tells the autopilot to brake
+        its response time early (:func:`~.follower.steer`'s ``brake_lag_s``), as on every path it flies."""
         if speed_mps < 0.5:
             return True
         s = self.speeds
@@ -549,8 +549,7 @@ class ReplanningMixin:
         limits = np.append(path.segment_speed_mps, 0.0)
         starts = np.append(path.s_m[:-1], path.length_m)
         slower = (limits < speed_mps) & (limits < s.cruise_mps - 1e-6)  # corners and the end, not the cruise
-        reaction = max(0.0, float(self.brake_lag_s) - PX4_RESPONSE_S)
-        need = speed_mps * reaction + (speed_mps**2 - limits[slower] ** 2) / (2.0 * max(s.accel_mps2, 1e-6))
+        need = (speed_mps**2 - limits[slower] ** 2) / (2.0 * max(s.accel_mps2, 1e-6))
         return bool(np.all(need <= starts[slower] + tolerance_m))
 
     def _lead_in_m(self, velocity_ne: np.ndarray, start_ne, waypoints: np.ndarray) -> float:

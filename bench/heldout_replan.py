@@ -1,11 +1,13 @@
 """Issue 11's held-out check: the client, given only the SF map, flies SF cities with tall walls across its route.
 
     python bench/heldout_replan.py [--missions 5] [--walls 3] [--seed 11] [--speedup 5] [--planner grid]
+                                   [--autopilot px4|ardupilot]
 
 For each mission (start and goal free at 5 m with a 5 m margin, 300-700 m apart, drawn with ``--seed``),
 ``skyroute.cityedit`` puts ``--walls`` 30 m walls across the route the grid planner takes on the SF map, keeping a
 detour. Then two flights of the real command line (``motion_planning.py --connection ...``) against
-``python -m sim --strict --speedup 5`` flying in the changed city (the truth):
+``python -m sim --strict --speedup 5`` flying in the changed city (the truth; PX4 personality unless
+``--autopilot ardupilot``: its 45 degree DISTANCE_SENSOR sectors instead of OBSTACLE_DISTANCE):
 
 * **stale**: the client is given only the SF map (it must sense the walls and replan);
 * **true**: the same client given the changed city itself (the yardstick for the airborne time).
@@ -51,13 +53,13 @@ def free_port() -> int:
 
 
 def fly(truth_map: Path, client_map: Path, start: Geodetic, goal: Geodetic, workdir: Path, *, speedup: float,
-        planner: str, extra: list[str] | None = None, timeout_s: float = 600.0) -> dict:
+        planner: str, extra: list[str] | None = None, timeout_s: float = 600.0, autopilot: str = "px4") -> dict:
     """One flight of the CLI against a fresh sim in ``truth_map``: ``{exit, report, stdout, stderr, wall_s}``."""
     port = free_port()
     report = workdir / f"report-{port}.json"
     sim_cmd = [sys.executable, "-m", "sim", "--map", str(truth_map), "--port", str(port), "--speedup", f"{speedup:g}",
                "--strict", "--origin", "boot", "--report", str(report), "--start",
-               f"{start.lat_deg:.8f},{start.lon_deg:.8f}", "-q"]
+               f"{start.lat_deg:.8f},{start.lon_deg:.8f}", "--autopilot", autopilot, "-q"]
     sim = subprocess.Popen(sim_cmd, cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                            stderr=subprocess.PIPE, start_new_session=True)
     try:
@@ -131,6 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--speedup", type=float, default=5.0)
     p.add_argument("--planner", default="grid")
+    p.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4", help="the sim's personality")
     p.add_argument("--keep", type=Path, default=None, help="keep the changed maps and logs here")
     args = p.parse_args(argv)
     stale_path = args.map or sfmap.local_copy()
@@ -154,8 +157,9 @@ def main(argv: list[str] | None = None) -> int:
         write_colliders(truth, change.obstacles, city.lat0_deg, city.lon0_deg)
         start = ned_to_geodetic(LocalNED(start_ne[0], start_ne[1], 0.0), home)
         goal = ned_to_geodetic(LocalNED(goal_ne[0], goal_ne[1], 0.0), home)
-        stale = fly(truth, Path(stale_path), start, goal, workdir, speedup=args.speedup, planner=args.planner)
-        true = fly(truth, truth, start, goal, workdir, speedup=args.speedup, planner=args.planner)
+        flight = {"speedup": args.speedup, "planner": args.planner, "autopilot": args.autopilot}
+        stale = fly(truth, Path(stale_path), start, goal, workdir, **flight)
+        true = fly(truth, truth, start, goal, workdir, **flight)
         ok, row = verdict(stale, true, goal_ne)
         passed += ok
         row.update({"mission": k, "start": start_ne, "goal": goal_ne, "ok": ok})

@@ -724,12 +724,17 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             self._sample()  # the liftoff may come now
             self.sleep(self.poll_s)
 
+    def _rounded(self, waypoints: np.ndarray) -> SmoothPath:
+        """The path the mission flies through ``waypoints`` (map frame): rounded and speed-scheduled at its speeds."""
+        s = self.speeds
+        return smooth_path(waypoints, corner_cut_m=self.corner_cut_m, cruise_mps=s.cruise_mps,
+                           accel_mps2=s.accel_mps2, lateral_accel_mps2=s.lateral_accel_mps2,
+                           vertical_mps=s.vertical_mps)
+
     def _follow(self, waypoints: np.ndarray) -> None:
         """Fly the rounded path through ``waypoints`` (see :func:`~.follower.steer`) and stop at the last one."""
         s = self.speeds
-        path = smooth_path(waypoints, corner_cut_m=self.corner_cut_m, cruise_mps=s.cruise_mps,
-                           accel_mps2=s.accel_mps2, lateral_accel_mps2=s.lateral_accel_mps2,
-                           vertical_mps=s.vertical_mps)
+        path = self._rounded(waypoints)
         last = len(waypoints) - 1
         ref_s, heading = self._progress_s, float(waypoints[0, 3])
         i = int(np.searchsorted(path.waypoint_s_m, self._progress_s, side="right"))

@@ -28,8 +28,6 @@ from typing import Protocol
 
 import numpy as np
 
-from .path import smooth_path
-
 log = logging.getLogger(__name__)
 
 #: PX4's velocity response (s, measured on SITL braking from 9 m/s): the braking rule was measured with it.
@@ -369,7 +367,8 @@ class _Rerouted(Exception):
 
 class ReplanningMixin:
     """The mission's REPLANNING state (a mixin of :class:`~.mission.Mission`; uses its vehicle, clock, progress,
-    speeds, ``sensing``, ``replan_errors``, ``replan_margin_m``, ``max_replans`` and ``result``)."""
+    speeds, ``_rounded`` paths, ``sensing``, ``replan_errors``, ``replan_margin_m``, ``max_replans`` and
+    ``result``)."""
 
     _target_ne: tuple[float, float] | None = None
     _unreachable: str | None = None
@@ -544,8 +543,7 @@ class ReplanningMixin:
         wps = np.array(waypoints, dtype=float)[:, :3]
         wps[0, :2] = start_ne[0], start_ne[1]
         wps[np.isnan(wps[:, 2]), 2] = self.altitude_m
-        path = smooth_path(wps, corner_cut_m=self.corner_cut_m, cruise_mps=s.cruise_mps, accel_mps2=s.accel_mps2,
-                           lateral_accel_mps2=s.lateral_accel_mps2, vertical_mps=s.vertical_mps)
+        path = self._rounded(wps)
         limits = np.append(path.segment_speed_mps, 0.0)
         starts = np.append(path.s_m[:-1], path.length_m)
         slower = (limits < speed_mps) & (limits < s.cruise_mps - 1e-6)  # corners and the end, not the cruise

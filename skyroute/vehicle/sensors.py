@@ -208,14 +208,6 @@ class _Sector:
     scan: RangeScan
     orientation: int
 
-    @property
-    def time_s(self) -> float:
-        return self.scan.time_s
-
-    @property
-    def bearings_rad(self) -> np.ndarray:
-        return self.scan.bearings_rad
-
 
 class SensorFeed:
     """Thread-safe queue of sensor readings: the link's reader calls :meth:`handle`, the mission :meth:`drain`.
@@ -337,9 +329,9 @@ class SensorFeed:
         missing now dropped out: it stays unknown."""
         out: list[RangeScan] = []
         first = self._sample_first
-        if first is None or reading.time_s != first.time_s:
+        if first is None or reading.time_s != first.scan.time_s:
             if first is not None:
-                nose = first.bearings_rad[0] - math.radians(_YAW_ORIENTATIONS[first.orientation])
+                nose = first.scan.bearings_rad[0] - math.radians(_YAW_ORIENTATIONS[first.orientation])
                 out = [dataclasses.replace(first.scan, bearings_rad=np.array([(nose + math.radians(deg)) % _TWO_PI]),
                                            distances_m=np.array([math.inf]))
                        for o, deg in _YAW_ORIENTATIONS.items() if o not in self._sectors_sent]

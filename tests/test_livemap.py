@@ -373,3 +373,19 @@ def test_a_wall_seen_obliquely_is_placed_on_its_face_not_in_front_of_it():
     bearings, half, d = _scan(np.vstack([posts, wall]), (0.5, 0.5), 8)
     live8.add_scan(0.5, 0.5, bearings, half, d, 30.0)
     assert _distance_to_boxes(live8.hit_cells_ne(), wall).max() > 5.0
+
+
+def test_a_cell_dropped_as_noise_takes_an_arcs_hit_only_when_no_other_cell_of_the_arc_can():
+    live = LiveMap(np.zeros((40, 40), bool), None, 0, 0, safety_m=2.0, confirm_hits=1, free_to_clear=1)
+    north = np.radians([0.0])
+    live.add_scan(5.5, 20.5, north, np.radians(1.0), np.array([10.0]), 30.0)  # hits cell (15, 20)
+    assert live.hits[15, 20]
+    for _ in range(2):  # then seen free twice: dropped as noise
+        live.add_scan(5.5, 20.5, north, np.radians(1.0), np.array([np.inf]), 30.0)
+    assert not live.hits[15, 20] and live.cleared[15, 20]
+    # A wider sector whose arc at 10 m spans cells (15, 20) and (15, 21): only the cell never dropped takes it.
+    live.add_scan(5.5, 21.0, north, np.radians(3.0), np.array([10.0]), 30.0)
+    assert live.hits[15, 21] and not live.hits[15, 20]
+    # A reading only the dropped cell can explain still marks it.
+    live.add_scan(5.5, 20.5, north, np.radians(1.0), np.array([10.0]), 30.0)
+    assert live.hits[15, 20]

@@ -21,7 +21,9 @@ still lies on the building's face, displaced by the error. A scan placed at a po
 up to 70 % of the safety margin: with 1.5 m of GPS noise, the map's own buildings were read as new ones along
 every street and closed them. A new obstacle closer than the tolerance to a map building keeps at least the rest
 of the margin (the tolerance is taken off it). A cell hit in ``confirm_hits`` scans
-is an observed obstacle; one later seen free ``free_to_clear`` times more often than hit is dropped again (noise).
+is an observed obstacle; one later seen free ``free_to_clear`` times more often than hit is dropped again (noise),
+and from then on takes an arc's hit only when no other cell of that arc can (``cleared``): an arc across a wall's
+end would otherwise mark the free cell beside it again each time the vehicle came back.
 
 Observed obstacle cells are inflated by the safety margin with the map's own Euclidean rule
 (:func:`.kernels.rasterise`, each hit cell a 1 m box: a cell is blocked when its square comes closer than the
@@ -129,6 +131,7 @@ class LiveMap:
         self.hits = np.zeros(shape, bool)
         self.inflated = np.zeros(shape, bool)
         self.known = np.zeros(shape, bool)
+        self.cleared = np.zeros(shape, bool)  # hit cells once dropped as noise (seen free more often than hit)
         self._grid = self.base.copy()
         self.version = 0
         self.scans = 0
@@ -336,6 +339,7 @@ class LiveMap:
         dropped = self.hits[sub] & (self.free_count[sub].astype(np.int64) >= counts + self.free_to_clear)
         self.hit_count[sub][dropped] = 0
         self.free_count[sub][dropped] = 0
+        self.cleared[sub] |= dropped
         self.hits[sub] = (self.hits[sub] | confirmed) & ~dropped
         changed = self.hits[sub] != before[sub]
         new_hits = int((self.hits[sub] & ~before[sub]).sum())
@@ -379,20 +383,30 @@ class LiveMap:
         between bearings ``lo`` and ``hi`` (rad)."""
         if len(dist) == 0:
             return np.empty((0, 2), np.int64)
-        points = []
-        for a, b, d in zip(lo, hi, dist):
+        points, arcs = [], []
+        for k, (a, b, d) in enumerate(zip(lo, hi, dist)):
             d = max(float(d), 0.0)
             steps = max(2, int(math.ceil((b - a) * max(d, 1.0) / self.arc_step_m)) + 1)
             angles = np.linspace(a, b, steps)
             points.append(p + d * np.column_stack([np.cos(angles), np.sin(angles)]))
-        pts = np.vstack(points)
+            arcs.append(np.full(steps, k))
+        pts, arc = np.vstack(points), np.concatenate(arcs)
         cells = np.floor(pts - (self.north_offset, self.east_offset)).astype(np.int64)
         n, m = self.shape
         on = (cells[:, 0] >= 0) & (cells[:, 0] < n) & (cells[:, 1] >= 0) & (cells[:, 1] < m)
-        cells = np.unique(cells[on], axis=0)
+        cells, arc = cells[on], arc[on]
         if self._map_distance is not None and len(cells):
-            cells = cells[self._map_distance[cells[:, 0], cells[:, 1]] > tolerance_m]
-        return cells
+            keep = self._map_distance[cells[:, 0], cells[:, 1]] > tolerance_m
+            cells, arc = cells[keep], arc[keep]
+        # A cell once dropped as noise takes an arc's hit only when no other cell of that arc can: the reading
+        # says some point of the arc is an obstacle, and cells seen free more often than hit are the least
+        # likely to hold it. Without this, an arc across a wall's end re-marked the free cell beside it each time
+        # the vehicle came back, and its margin closed the street again: a vehicle flew to and fro for good.
+        cleared = self.cleared[cells[:, 0], cells[:, 1]]
+        if cleared.any():
+            others = np.bincount(arc[~cleared], minlength=len(dist)) > 0
+            cells = cells[~cleared | ~others[arc]]
+        return np.unique(cells, axis=0) if len(cells) else np.empty((0, 2), np.int64)
 
     def _reinflate(self, changed_cells: np.ndarray) -> bool:
         """Recompute the inflated layer round changed hit cells; True if the planning grid changed."""

@@ -500,3 +500,52 @@ def test_a_new_route_is_taken_on_the_fly_only_when_the_vehicle_can_slow_down_for
     assert mission._turn_onto(far_corner, (0.0, 0.0), None, stops_short=False) == (far_corner, None)
     assert mission._turn_onto(near_corner, (0.0, 0.0), None, stops_short=True) is None
     assert not mission._slows_in_time(12.0, (0.0, 0.0), _route((0.0, 0.0), (15.0, 0.0)).waypoints)  # the goal
+
+
+class _PhantomWallVehicle(SensingVehicle):
+    """Reads the wall across the central street in two scans once it comes within 25 m of it, and never again
+    (noise that looks like a wall): the layer confirms it, then sees the street free and drops it."""
+
+    def __init__(self, clock, truth, **kwargs):
+        super().__init__(clock, truth, **kwargs)
+        phantom = np.vstack([truth, WALL])
+        lo, hi = phantom[:, :3] - phantom[:, 3:], phantom[:, :3] + phantom[:, 3:]
+        self.phantom = lo[:, :2], hi[:, :2], hi[:, 2]
+        self.phantom_scans = 2
+
+    def _take(self, north_m, east_m, altitude_m, **stamp):
+        if self.phantom_scans and north_m >= WALL[0, 0] - 25.0:
+            self.phantom_scans -= 1
+            truth, (self.lo, self.hi, self.top) = (self.lo, self.hi, self.top), self.phantom
+            try:
+                return super()._take(north_m, east_m, altitude_m, **stamp)
+            finally:
+                self.lo, self.hi, self.top = truth
+        return super()._take(north_m, east_m, altitude_m, **stamp)
+
+
+def test_a_detour_round_an_obstacle_dropped_as_noise_is_given_up_for_the_way_it_closed():
+    clock = FakeClock()
+    v = _PhantomWallVehicle(clock, STALE, start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    result = _mission(v, clock, _obstacles(), calls=[]).run()
+    assert result.completed and result.landing_error_m < 0.5
+    reasons = [r.reason for r in result.replans]
+    assert reasons[0] in ("blocked", "margin") and "reopened" in reasons  # detoured, then took the street again
+    reroute = result.replans[reasons.index("reopened")]
+    assert "rerouted" in reroute.describe() and np.allclose(reroute.waypoints[-1, :2], GOAL)
+    track = result.track[:, 1:3]
+    passed = track[np.abs(track[:, 0] - WALL[0, 0]) < 1.0]  # where it crossed the phantom wall's line
+    assert len(passed) and np.abs(passed[:, 1]).max() < 10.0  # up the central street (east -10..10), not round
+
+
+def test_without_a_reroute_the_phantom_wall_sends_the_vehicle_round_a_block():
+    """The check on the test above: the same flight with the reroute taken out goes the long way."""
+    clock = FakeClock()
+    v = _PhantomWallVehicle(clock, STALE, start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    obstacles = _obstacles()
+    obstacles.reroute_job = lambda position_ne, current_ne: None
+    result = _mission(v, clock, obstacles, calls=[]).run()
+    assert result.completed and "reopened" not in [r.reason for r in result.replans]
+    track = result.track[:, 1:3]
+    passed = track[np.abs(track[:, 0] - WALL[0, 0]) < 1.0]
+    assert np.abs(passed[:, 1]).min() > 10.0

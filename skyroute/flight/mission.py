@@ -759,6 +759,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             if self.clock() > deadline:
                 raise _Abort(self._not_reached(i, waypoints[i], i == last, deadline - start_s))
             self._sense(p, waypoints, i)
+            self._reroute_if_reopened(p, waypoints, i)
             self._take_refined(p)
             if self.clock() - sent_at < 0.9 * self.poll_s:  # woken early by a reading: checked, nothing to send
                 self._tick(wake_on_sensor=True)

@@ -10,7 +10,10 @@ hold first when the vehicle could not stop short of the obstacle (:func:`can_tur
 runs on the way it flies with room to slow down for its corners, or when it cannot turn onto the new route. Once
 the new route's first setpoint is out, the map's refinement under its stale-map prior (``refine_job``) runs on a
 worker thread and, if it finds a better route that is still clear when it is done, the vehicle switches to it
-(no new event: the state stays WAYPOINT; the replan's record keeps the refined route).
+(no new event: the state stays WAYPOINT; the replan's record keeps the refined route). When the layer drops
+observed obstacles as noise, the same worker looks for a way they closed that is open again (``reroute_job``); a
+clearly better one is taken as the refined routes are, braking first only when that is worth a stop (its own
+record, reason "reopened").
 
 Latency: a :class:`ReplanRecord`'s ``latency_ms`` runs from the arrival of the oldest reading of the poll that
 found the blockage (our monotonic clock, stamped by the link's reader) to the first setpoint of the new path, or
@@ -71,7 +74,9 @@ class ObstacleMap(Protocol):
 
     # Optional: ``refine_job(position_ne, route_ne) -> (() -> Route | None) | None``, the search for a better
     # route under a prior on what the map gets wrong (``Replanner.refine_job``), started once the first setpoint of
-    # a replanned route is out and run on a worker thread.
+    # a replanned route is out and run on a worker thread; and ``reroute_job(position_ne, route_ne)``, the same
+    # kind of job asked for when ``add_scan``'s answer says it dropped observed obstacles (``cleared``) and the
+    # planning grid changed (``changed``): a way they closed may be open again (``Replanner.reroute_job``).
 
 
 class PositionFix(Protocol):
@@ -93,7 +98,8 @@ class PositionFix(Protocol):
 @dataclass(frozen=True)
 class ReplanRecord:
     """One replan: ``time_s`` (our clock), where (map ``north_m``, ``east_m``), ``reason`` and ``along_m`` of the
-    blockage, ``plan_ms`` the planning, ``latency_ms`` reading in -> new setpoint out, ``braked`` whether the
+    blockage ("reopened", NaN: a reroute onto a way reopened when the layer dropped obstacles as noise), ``plan_ms``
+    the planning, ``latency_ms`` reading in -> new setpoint out, ``braked`` whether the
     vehicle stopped first, ``waypoints`` the new route (None when the replan failed), ``outcome`` "replanned",
     "goal blocked" / "goal unreachable" (with the error text)."""
 
@@ -111,6 +117,10 @@ class ReplanRecord:
 
     def describe(self) -> str:
         """One log line."""
+        if self.reason == "reopened":
+            return (f"a way closed by obstacles since dropped as noise, at ({self.north_m:.1f} N, {self.east_m:.1f} "
+                    f"E): {'braked, then ' if self.braked else ''}rerouted: {len(self.waypoints)} waypoints, "
+                    f"searched in {self.plan_ms:.1f} ms")
         what = (f"{self.outcome}: {len(self.waypoints)} waypoints" if self.waypoints is not None else self.outcome)
         refined = (f"; then refined under the stale-map prior in {self.refine_ms:.1f} ms"
                    if math.isfinite(self.refine_ms) else "")
@@ -209,6 +219,7 @@ class Sensing:
     heights: int = 0
     low_scans: int = 0
     records: list[ReplanRecord] = field(default_factory=list)
+    reopened: bool = False  # the map dropped observed obstacles as noise since the mission last looked
     _oldest_s: float = math.nan
     _fix_logged_s: float = -math.inf
 
@@ -239,8 +250,10 @@ class Sensing:
         def flush() -> None:
             if batch:
                 sn, se, half, rng, err, pos_err = batch[0][:6]
-                self.obstacles.add_scan(sn, se, np.concatenate([b[6] for b in batch]), half,
-                                        np.concatenate([b[7] for b in batch]), rng, err, pos_err)
+                update = self.obstacles.add_scan(sn, se, np.concatenate([b[6] for b in batch]), half,
+                                                 np.concatenate([b[7] for b in batch]), rng, err, pos_err)
+                if getattr(update, "cleared", 0) and getattr(update, "changed", False):
+                    self.reopened = True
                 batch.clear()
 
         for r in got:
@@ -379,6 +392,7 @@ class ReplanningMixin:
     _refining: Future | None = None  # that refinement, running on the worker thread
     _refine_pool: ThreadPoolExecutor | None = None
     _lead_in_ne: tuple[float, float] | None = None  # the replanned route starts with a straight lead-in to here
+    _reroute_from_m: float = math.nan  # the rest of the route flown when a reroute was asked for (NaN: a refinement)
 
     @property
     def discovered_obstacles(self) -> np.ndarray:
@@ -670,11 +684,69 @@ class ReplanningMixin:
             self._refine_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="refine")
         self._refining = self._refine_pool.submit(job)
 
+    def _reroute_if_reopened(self, p, waypoints: np.ndarray, i: int) -> None:
+        """The layer dropped observed obstacles as noise since the last poll, so a way they closed may be open
+        again: flying to the goal with no replan or refinement under way, ask the obstacle map (``reroute_job``)
+        for a route clearly better than the rest of this one (from the vehicle through waypoints ``i:``), on the
+        refinement's worker thread; :meth:`_take_refined` takes it. Without this, an arc read across a wall's end
+        closed the street beside it, the vehicle turned back, the cell was seen free and dropped at once, and the
+        vehicle still flew the long way round it had just chosen."""
+        sensing = self.sensing
+        if not sensing.reopened or self._refining is not None or self._refine_due or self._pending is not None:
+            return  # looked at once the replan or refinement under way is done
+        sensing.reopened = False
+        job_of = getattr(sensing.obstacles, "reroute_job", None)
+        if job_of is None or self._target_ne is not None:
+            return
+        here = (p.north_m, p.east_m)
+        rest = np.vstack([here, np.asarray(waypoints, float)[i:, :2]])
+        job = job_of(here, rest)
+        if job is None:
+            return
+        if self._refine_pool is None:
+            self._refine_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="refine")
+        self._reroute_from_m = float(np.sum(np.hypot(*np.diff(rest, axis=0).T)))
+        self._refining = self._refine_pool.submit(job)
+
+    def _take_rerouted(self, p, route, from_m: float) -> None:
+        """A reopened way (:meth:`_reroute_if_reopened`) still clear from here becomes the route (raises
+        :class:`_Rerouted`, with its own replan record, reason "reopened"): at once when the vehicle can turn onto
+        it and slow down for its corners in time (:meth:`_turn_onto`'s rule), else after braking to a stop if the
+        metres it saves on the rest of the route (``from_m`` long when asked for) are more than a stop and a start
+        cost (speed^2 / deceleration, flown at cruise)."""
+        here = (p.north_m, p.east_m)
+        waypoints = np.asarray(route.waypoints, float)
+        if self.sensing.obstacles.check(here, waypoints[1:, :2]) is not None:
+            return
+        t = self.vehicle.telemetry
+        velocity = np.array([t.local_v_north_mps, t.local_v_east_mps], float)
+        speed = float(np.hypot(*velocity))
+        braked = False
+        if self._lead_in_m(velocity, here, waypoints) > 0.0 or not self._slows_in_time(speed, here, waypoints):
+            saved = from_m - float(getattr(route, "length_m", math.nan))
+            if not saved > speed**2 / max(self.speeds.accel_mps2, 1e-6):
+                log.info("replan: a reopened way saves %.0f m, not worth a stop from %.1f m/s", saved, speed)
+                return
+            self._brake()
+            braked = True
+            p = self._map_position()
+            here = (p.north_m, p.east_m)
+            if self.sensing.obstacles.check(here, waypoints[1:, :2]) is not None:
+                return
+        self._lead_in_ne = None
+        waypoints = self._flight_waypoints(waypoints, p)
+        self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, "reopened", math.nan,
+                                         float(route.plan_ms), math.nan, braked, waypoints))
+        self._say(f"a way the map had closed is open again: {'braked and ' if braked else ''}rerouted, "
+                  f"{from_m - float(getattr(route, 'length_m', math.nan)):.0f} m shorter")
+        raise _Rerouted(waypoints)
+
     def _forget_refinement(self) -> None:
         """Drop the refinement asked for last: one not started yet never runs (a wall seen a piece at a time is
         replanned at the sensor rate, faster than a refinement runs, and a queue of refinements of routes already
         given up would hold back the one for the route flown); a running one finishes unheeded."""
         future, self._refining = self._refining, None
+        self._reroute_from_m = math.nan
         if future is not None:
             future.cancel()
 
@@ -686,12 +758,16 @@ class ReplanningMixin:
         if future is None or not future.done():
             return
         self._refining = None
+        from_m, self._reroute_from_m = self._reroute_from_m, math.nan
         try:
             route = future.result()
         except Exception as exc:  # noqa: BLE001 - a failed refinement leaves the replanned route, which is free
             log.warning("refining the route failed (%s); flying the replanned route", exc)
             return
         if route is None:
+            return
+        if math.isfinite(from_m):
+            self._take_rerouted(p, route, from_m)
             return
         here = (p.north_m, p.east_m)
         waypoints = np.asarray(route.waypoints, float)

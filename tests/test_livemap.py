@@ -389,3 +389,18 @@ def test_a_cell_dropped_as_noise_takes_an_arcs_hit_only_when_no_other_cell_of_th
     # A reading only the dropped cell can explain still marks it.
     live.add_scan(5.5, 20.5, north, np.radians(1.0), np.array([10.0]), 30.0)
     assert live.hits[15, 20]
+
+
+def test_a_cell_seen_free_more_often_than_hit_settles_as_free_instead_of_flickering():
+    """Hit in one scan of three, seen free in the other two (an arc grazing the free cell beside a wall's end): the
+    evidence is counted over the whole flight, so the cell settles as free; reset at each drop, it came back every
+    few scans, and its margin closed and opened a corridor at that rate."""
+    live = LiveMap(np.zeros((40, 40), bool), None, 0, 0, safety_m=2.0, confirm_hits=2, free_to_clear=3)
+    north = np.radians([0.0])
+    states = []
+    for _ in range(20):
+        for reading in (10.0, np.inf, np.inf):
+            live.add_scan(5.5, 20.5, north, np.radians(1.0), np.array([reading]), 30.0)
+            states.append(bool(live.hits[15, 20]))
+    assert any(states[:9])  # confirmed at first, on the first hits
+    assert not any(states[-30:])  # and free for good once the free readings outweigh the hits

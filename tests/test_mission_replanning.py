@@ -503,18 +503,18 @@ def test_a_new_route_is_taken_on_the_fly_only_when_the_vehicle_can_slow_down_for
 
 
 class _PhantomWallVehicle(SensingVehicle):
-    """Reads the wall across the central street in two scans once it comes within 25 m of it, and never again
-    (noise that looks like a wall): the layer confirms it, then sees the street free and drops it."""
+    """Reads the wall across the central street in three scans as soon as it comes within the sensor's 30 m,
+    and never again (noise that looks like a wall): the layer confirms it, then sees the street free and drops it."""
 
     def __init__(self, clock, truth, **kwargs):
         super().__init__(clock, truth, **kwargs)
         phantom = np.vstack([truth, WALL])
         lo, hi = phantom[:, :3] - phantom[:, 3:], phantom[:, :3] + phantom[:, 3:]
         self.phantom = lo[:, :2], hi[:, :2], hi[:, 2]
-        self.phantom_scans = 2
+        self.phantom_scans = 3
 
     def _take(self, north_m, east_m, altitude_m, **stamp):
-        if self.phantom_scans and north_m >= WALL[0, 0] - 25.0:
+        if self.phantom_scans and north_m >= WALL[0, 0] - 29.0:
             self.phantom_scans -= 1
             truth, (self.lo, self.hi, self.top) = (self.lo, self.hi, self.top), self.phantom
             try:

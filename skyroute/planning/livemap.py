@@ -20,10 +20,13 @@ still lies on the building's face, displaced by the error. A scan placed at a po
 (``position_error_m``: three times the GPS receiver's reported accuracy) uses that as its tolerance in both tests,
 up to 70 % of the safety margin: with 1.5 m of GPS noise, the map's own buildings were read as new ones along
 every street and closed them. A new obstacle closer than the tolerance to a map building keeps at least the rest
-of the margin (the tolerance is taken off it). A cell hit in ``confirm_hits`` scans
-is an observed obstacle; one later seen free ``free_to_clear`` times more often than hit is dropped again (noise),
-and from then on takes an arc's hit only when no other cell of that arc can (``cleared``): an arc across a wall's
-end would otherwise mark the free cell beside it again each time the vehicle came back.
+of the margin (the tolerance is taken off it). A cell is an observed
+obstacle while it has been hit in ``confirm_hits`` scans or more and not seen free ``free_to_clear`` times more
+often than hit, counted over the whole flight: a cell dropped as noise comes back only when the hits catch up, not
+two scans later (reset at each drop, a cell beside a wall's end flickered in and out at the sensor rate and its
+margin closed and opened a corridor the truth leaves open). A cell once dropped also takes an arc's hit only when
+no other cell of that arc can (``cleared``): an arc across a wall's end would otherwise mark the free cell beside
+it again each time the vehicle came back.
 
 Observed obstacle cells are inflated by the safety margin with the map's own Euclidean rule
 (:func:`.kernels.rasterise`, each hit cell a 1 m box: a cell is blocked when its square comes closer than the
@@ -107,8 +110,8 @@ class LiveMap:
     safety_m : float
         Margin round observed obstacles (m), as the map's.
     confirm_hits, free_to_clear : int
-        Scans that must hit a cell before it counts; how many more times a hit cell must be seen free than hit
-        before it is dropped.
+        Scans that must hit a cell before it counts; how many more times a cell must be seen free than hit (over
+        the whole flight) before it no longer counts.
     explain_tolerance_m : float
         A reading no shorter than the map's prediction minus this is the map's building.
     """
@@ -335,12 +338,10 @@ class LiveMap:
             self.known[hi, hj] = True
         sub = (slice(i0, i1), slice(j0, j1))
         counts = self.hit_count[sub].astype(np.int64)
-        confirmed = counts >= self.confirm_hits
-        dropped = self.hits[sub] & (self.free_count[sub].astype(np.int64) >= counts + self.free_to_clear)
-        self.hit_count[sub][dropped] = 0
-        self.free_count[sub][dropped] = 0
+        outweighed = self.free_count[sub].astype(np.int64) >= counts + self.free_to_clear
+        dropped = self.hits[sub] & outweighed
         self.cleared[sub] |= dropped
-        self.hits[sub] = (self.hits[sub] | confirmed) & ~dropped
+        self.hits[sub] = (counts >= self.confirm_hits) & ~outweighed
         changed = self.hits[sub] != before[sub]
         new_hits = int((self.hits[sub] & ~before[sub]).sum())
         cleared = int((before[sub] & ~self.hits[sub]).sum())

@@ -382,7 +382,7 @@ def test_a_cell_dropped_as_noise_takes_an_arcs_hit_only_when_no_other_cell_of_th
     assert live.hits[15, 20]
     for _ in range(2):  # then seen free twice: dropped as noise
         live.add_scan(5.5, 20.5, north, np.radians(1.0), np.array([np.inf]), 30.0)
-    assert not live.hits[15, 20] and live.cleared[15, 20]
+    assert not live.hits[15, 20] and live.once_dropped[15, 20]
     # A wider sector whose arc at 10 m spans cells (15, 20) and (15, 21): only the cell never dropped takes it.
     live.add_scan(5.5, 21.0, north, np.radians(3.0), np.array([10.0]), 30.0)
     assert live.hits[15, 21] and not live.hits[15, 20]

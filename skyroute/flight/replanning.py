@@ -721,9 +721,9 @@ class ReplanningMixin:
         t = self.vehicle.telemetry
         velocity = np.array([t.local_v_north_mps, t.local_v_east_mps], float)
         speed = float(np.hypot(*velocity))
+        saved = from_m - float(getattr(route, "length_m", math.nan))
         braked = False
         if self._lead_in_m(velocity, here, waypoints) > 0.0 or not self._slows_in_time(speed, here, waypoints):
-            saved = from_m - float(getattr(route, "length_m", math.nan))
             if not saved > speed**2 / max(self.speeds.accel_mps2, 1e-6):
                 log.info("replan: a reopened way saves %.0f m, not worth a stop from %.1f m/s", saved, speed)
                 return
@@ -738,7 +738,7 @@ class ReplanningMixin:
         self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, "reopened", math.nan,
                                          float(route.plan_ms), math.nan, braked, waypoints))
         self._say(f"a way the map had closed is open again: {'braked and ' if braked else ''}rerouted, "
-                  f"{from_m - float(getattr(route, 'length_m', math.nan)):.0f} m shorter")
+                  f"{saved:.0f} m shorter")
         raise _Rerouted(waypoints)
 
     def _forget_refinement(self) -> None:

@@ -19,14 +19,13 @@ at a grazing angle, half a metre of sideways error moves the predicted range by 
 still lies on the building's face, displaced by the error. A scan placed at a position that may be off by more
 (``position_error_m``: three times the GPS receiver's reported accuracy) uses that as its tolerance in both tests,
 up to 70 % of the safety margin: with 1.5 m of GPS noise, the map's own buildings were read as new ones along
-every street and closed them. A new obstacle closer than the tolerance to a map building keeps at least the rest
-of the margin (the tolerance is taken off it). A cell is an observed
-obstacle while it has been hit in ``confirm_hits`` scans or more and not seen free ``free_to_clear`` times more
-often than hit, counted over the whole flight: a cell dropped as noise comes back only when the hits catch up, not
-two scans later (reset at each drop, a cell beside a wall's end flickered in and out at the sensor rate and its
-margin closed and opened a corridor the truth leaves open). A cell once dropped also takes an arc's hit only when
-no other cell of that arc can (``cleared``): an arc across a wall's end would otherwise mark the free cell beside
-it again each time the vehicle came back.
+every street and closed them. A new obstacle closer than the tolerance to a map building keeps at least the rest of
+the margin (the tolerance is taken off it). A cell is an observed obstacle while it has been hit in ``confirm_hits``
+scans or more and not seen free ``free_to_clear`` times more often than hit, counted over the whole flight: a cell
+dropped as noise comes back only when the hits catch up, not two scans later (reset at each drop, a cell beside a
+wall's end flickered in and out at the sensor rate and its margin closed and opened a corridor the truth leaves
+open). A cell once dropped also takes an arc's hit only when no other cell of that arc can (``once_dropped``): an arc
+across a wall's end would otherwise mark the free cell beside it again each time the vehicle came back.
 
 Observed obstacle cells are inflated by the safety margin with the map's own Euclidean rule
 (:func:`.kernels.rasterise`, each hit cell a 1 m box: a cell is blocked when its square comes closer than the
@@ -134,7 +133,7 @@ class LiveMap:
         self.hits = np.zeros(shape, bool)
         self.inflated = np.zeros(shape, bool)
         self.known = np.zeros(shape, bool)
-        self.cleared = np.zeros(shape, bool)  # hit cells once dropped as noise (seen free more often than hit)
+        self.once_dropped = np.zeros(shape, bool)  # hit cells once dropped as noise (seen free more often than hit)
         self._grid = self.base.copy()
         self.version = 0
         self.scans = 0
@@ -340,7 +339,7 @@ class LiveMap:
         counts = self.hit_count[sub].astype(np.int64)
         outweighed = self.free_count[sub].astype(np.int64) >= counts + self.free_to_clear
         dropped = self.hits[sub] & outweighed
-        self.cleared[sub] |= dropped
+        self.once_dropped[sub] |= dropped
         self.hits[sub] = (counts >= self.confirm_hits) & ~outweighed
         changed = self.hits[sub] != before[sub]
         new_hits = int((self.hits[sub] & ~before[sub]).sum())
@@ -403,10 +402,10 @@ class LiveMap:
         # says some point of the arc is an obstacle, and cells seen free more often than hit are the least
         # likely to hold it. Without this, an arc across a wall's end re-marked the free cell beside it each time
         # the vehicle came back, and its margin closed the street again: a vehicle flew to and fro for good.
-        cleared = self.cleared[cells[:, 0], cells[:, 1]]
-        if cleared.any():
-            others = np.bincount(arc[~cleared], minlength=len(dist)) > 0
-            cells = cells[~cleared | ~others[arc]]
+        dropped = self.once_dropped[cells[:, 0], cells[:, 1]]
+        if dropped.any():
+            others = np.bincount(arc[~dropped], minlength=len(dist)) > 0
+            cells = cells[~dropped | ~others[arc]]
         return np.unique(cells, axis=0) if len(cells) else np.empty((0, 2), np.int64)
 
     def _reinflate(self, changed_cells: np.ndarray) -> bool:

@@ -89,8 +89,11 @@ def _wall_at(footprint: np.ndarray, north_offset: int, east_offset: int, point: 
     cell = map_to_cell(point[0], point[1], north_offset, east_offset)
     low, high = _span(footprint, cell, across, int(max_half_m))
     origin = (north_offset, east_offset)[across]
-    lo = origin + cell[across] + low - 0.5  # half a metre into the building (or beyond the last free cell)
-    hi = origin + cell[across] + high + 1.5
+    # Half a metre into the building; at the map's edge, to the edge and no further: a wall sticking out would
+    # grow the changed map's grid by a row the original's lacks, and a route round its end there exists on the
+    # truth alone (a held-out mission's true route ran along that row).
+    lo = max(origin + cell[across] + low - 0.5, origin)
+    hi = min(origin + cell[across] + high + 1.5, origin + footprint.shape[across])
     centre_across, half_across = (lo + hi) / 2.0, (hi - lo) / 2.0
     half_along = thickness_m / 2.0
     if across == 1:

@@ -7,6 +7,7 @@ import pytest
 
 from skyroute.cityedit import enclose_goal, main, remove_boxes, walls_across_route
 from skyroute.maps import read_colliders
+from skyroute.planning.cspace import grid_extent
 from skyroute.planning.errors import NoPathError
 from skyroute.planning.grid import GridMap
 
@@ -33,6 +34,17 @@ def test_walls_cross_the_original_route_and_leave_a_detour():
     assert wall[1] - wall[4] <= -10.0 and wall[1] + wall[4] >= 10.0 and wall[4] <= 11.0
     detour = GridMap.build(change.obstacles, 5, 3).plan(start, goal, snap_start=True)
     assert detour.length_m > GridMap.build(BLOCKS, 5, 3).plan(start, goal).length_m + 50.0  # round a block
+
+
+def test_a_wall_across_a_street_at_the_maps_edge_ends_at_the_edge():
+    # The west street runs between the blocks and the map's edge; a wall across it reaches the edge and stops
+    # there, so the changed map keeps the original's grid: no route round the wall's end outside the map.
+    start, goal = (-85.0, -85.0), (85.0, -85.0)
+    change = walls_across_route(BLOCKS, start, goal, altitude_m=5, safety_m=3, count=1, seed=0,
+                                keep_reachable=False)
+    (wall,) = change.added
+    assert wall[1] - wall[4] == pytest.approx(-96.0)  # the map's west edge (the posts: -95.5, floored)
+    assert grid_extent(change.obstacles) == grid_extent(BLOCKS)
 
 
 def test_every_returned_city_keeps_the_goal_reachable():

@@ -375,6 +375,21 @@ def test_a_wall_seen_obliquely_is_placed_on_its_face_not_in_front_of_it():
     assert _distance_to_boxes(live8.hit_cells_ne(), wall).max() > 5.0
 
 
+def test_a_face_seen_at_a_grazing_angle_marks_no_cell_in_front_of_it():
+    # Seen from beyond a wall's end, almost along its west face (east 7.38): each sector's nearest point is at its
+    # edge towards the wall's end, on the face. A quarter arc there lay 0.58 m in front of the face at 26 m, in the
+    # cell west of the face's: a one-cell passage beside that face closed (a false "no path" on the offline model).
+    posts = np.array([[-99.5, -99.5, 0.5, 0.5, 0.5, 0.5], [99.5, 99.5, 0.5, 0.5, 0.5, 0.5]])
+    wall = np.array([[0.0, 8.38, 15.0, 60.5, 1.0, 15.0]])
+    live, _ = _live(posts, confirm_hits=1)
+    p = (66.5, 3.92)
+    live.add_scan(*p, *_scan(np.vstack([posts, wall]), p, 72), 30.0)
+    hits = live.hit_cells_ne()
+    assert len(hits) >= 3  # the face is seen in several sectors
+    # every hit cell overlaps the wall: none lies west of the face's cell (east 7..8)
+    assert hits[:, 1].min() >= 7.5 and _distance_to_boxes(hits, wall).max() <= 0.71
+
+
 def test_a_cell_dropped_as_noise_takes_an_arcs_hit_only_when_no_other_cell_of_the_arc_can():
     live = LiveMap(np.zeros((40, 40), bool), None, 0, 0, safety_m=2.0, confirm_hits=1, free_to_clear=1)
     north = np.radians([0.0])

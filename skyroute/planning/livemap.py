@@ -56,6 +56,9 @@ _TWO_PI = 2.0 * math.pi
 #: Sectors this narrow (half width, rad) or narrower place an oblique reading's hit at the edge towards the
 #: nearer neighbour (:meth:`LiveMap._hit_spans`); a neighbour is nearer when it reads this much (m) shorter.
 FINE_HALF_RAD, NEIGHBOUR_MARGIN_M = math.radians(2.6), 0.5
+#: Arc (m) marked at the shared edge when the face is seen to cross it (a run of three readings, each shorter
+#: towards the same side): the edge point itself, give or take the range's centimetre.
+EDGE_POINT_ARC_M = 0.05
 #: A scan's position error widens the explaining tolerance up to this share of the safety margin: a new obstacle
 #: taken for the map building it stands beside keeps the rest of the margin (3.5 m of 5 m, issue 11's clearance).
 MAX_TOLERANCE_PER_MARGIN = 0.7
@@ -357,7 +360,8 @@ class LiveMap:
         marked, except in fine sectors (PX4's 5 degrees, ``half <= FINE_HALF_RAD``) where one neighbour reads
         clearly shorter and the other does not: a surface seen obliquely comes closer towards that neighbour, so
         the nearest point of this wedge is at the edge they share, and only the quarter of the arc next to it is
-        marked. Marked whole, that arc lies up to 2.5 m in front of a face seen at 30 m and 60 degrees, and
+        marked; when the next neighbour on that side reads shorter still (the face crosses both edges), only the
+        edge point. Marked whole, that arc lies up to 2.5 m in front of a face seen at 30 m and 60 degrees, and
         inflated by the margin it closed a street the truth left open."""
         c, d = centres[unexplained], dist[unexplained]
         lo, hi = c - half, c + half
@@ -373,8 +377,18 @@ class LiveMap:
         with np.errstate(invalid="ignore"):
             nearer_left = (left < d - NEIGHBOUR_MARGIN_M) & ~(right < d - NEIGHBOUR_MARGIN_M)
             nearer_right = (right < d - NEIGHBOUR_MARGIN_M) & ~(left < d - NEIGHBOUR_MARGIN_M)
-        hi = np.where(nearer_left, lo + 0.5 * half, hi)
-        lo = np.where(nearer_right, hi - 0.5 * half, lo)
+        # A run of three (the next neighbour on that side reads shorter still): a face crossing both shared edges,
+        # so this wedge's nearest point is the edge point itself. The quarter arc at a grazing angle lies up to
+        # 0.6 m in front of the face, a cell too near: one such cell closed a passage one cell wide past a wall's
+        # end, and the mission ended in a false "no path".
+        far_left = np.array([reading.get(int((k - 2) % count), math.nan) for k in mine])
+        far_right = np.array([reading.get(int((k + 2) % count), math.nan) for k in mine])
+        with np.errstate(invalid="ignore"):
+            run = ((nearer_left & (far_left < left - NEIGHBOUR_MARGIN_M))
+                   | (nearer_right & (far_right < right - NEIGHBOUR_MARGIN_M)))
+        edge = np.where(run, np.minimum(EDGE_POINT_ARC_M / np.maximum(d, 1.0), 0.5 * half), 0.5 * half)
+        hi = np.where(nearer_left, lo + edge, hi)
+        lo = np.where(nearer_right, hi - edge, lo)
         return lo, hi
 
     def _arc_cells(self, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, dist: np.ndarray,

@@ -390,6 +390,21 @@ def test_a_face_seen_at_a_grazing_angle_marks_no_cell_in_front_of_it():
     assert hits[:, 1].min() >= 7.5 and _distance_to_boxes(hits, wall).max() <= 0.71
 
 
+def test_a_walls_corner_is_marked_where_its_face_runs_into_it_not_across_the_corners_sector():
+    # South-east of an east-west wall's end (the corner at north 15.3, east 60.5): the corner is the nearest thing
+    # in its sector and neither neighbour reads nearer, so the whole arc was marked, past the corner into the free
+    # cell beyond the end (east 61..62). The south face recedes through the next two sectors; its line through
+    # their edge points, carried on to the corner sector's reading, puts the corner where it is.
+    posts = np.array([[-99.5, -99.5, 0.5, 0.5, 0.5, 0.5], [99.5, 99.5, 0.5, 0.5, 0.5, 0.5]])
+    wall = np.array([[16.3, 0.38, 15.0, 1.0, 60.12, 15.0]])
+    for p in [(-5.5, 70.5), (-7.5, 66.5), (-2.5, 68.5)]:
+        live, _ = _live(posts, confirm_hits=1)
+        live.add_scan(*p, *_scan(np.vstack([posts, wall]), p, 72), 30.0)
+        hits = live.hit_cells_ne()
+        assert [15.5, 60.5] in hits.tolist()  # the corner's own cell
+        assert _distance_to_boxes(hits, wall).max() <= 0.71  # every hit cell overlaps the wall
+
+
 def test_a_cell_dropped_as_noise_takes_an_arcs_hit_only_when_no_other_cell_of_the_arc_can():
     live = LiveMap(np.zeros((40, 40), bool), None, 0, 0, safety_m=2.0, confirm_hits=1, free_to_clear=1)
     north = np.radians([0.0])

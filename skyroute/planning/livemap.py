@@ -83,6 +83,31 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
     return (angle + math.pi) % _TWO_PI - math.pi
 
 
+def _along_face(edge_rad: np.ndarray, far_edge_rad: np.ndarray, range_m: np.ndarray, far_range_m: np.ndarray,
+                dist_m: np.ndarray, centre_rad: np.ndarray, half: float) -> np.ndarray:
+    """Bearing (rad) at which the line through the points at ``(edge_rad, range_m)`` and ``(far_edge_rad,
+    far_range_m)``, carried on past the first towards the wedge ``centre_rad +- half``, comes to ``dist_m`` from the
+    sensor; NaN unless those readings recede from the wedge (each at least a neighbour margin farther) and that
+    bearing lies in the wedge."""
+    with np.errstate(invalid="ignore"):
+        receding = (np.isfinite(range_m) & np.isfinite(far_range_m) & (range_m >= dist_m)
+                    & (far_range_m > range_m + NEIGHBOUR_MARGIN_M))
+    r1 = np.where(receding, range_m, 1.0)
+    r2 = np.where(receding, far_range_m, 2.0)
+    p1 = r1[:, None] * np.column_stack([np.cos(edge_rad), np.sin(edge_rad)])
+    p2 = r2[:, None] * np.column_stack([np.cos(far_edge_rad), np.sin(far_edge_rad)])
+    v = p1 - p2
+    length = np.hypot(v[:, 0], v[:, 1])
+    v = v / np.maximum(length, 1e-9)[:, None]
+    b = (p1 * v).sum(axis=1)
+    disc = b * b - (r1 * r1 - dist_m * dist_m)
+    t = -b - np.sqrt(np.maximum(disc, 0.0))
+    x = p1 + t[:, None] * v
+    bearing = np.arctan2(x[:, 1], x[:, 0])
+    inside = np.abs(_wrap(bearing - centre_rad)) <= half
+    return np.where(receding & (length > 1e-6) & (disc >= 0.0) & (t >= 0.0) & inside, bearing, np.nan)
+
+
 def _distance_to(cells: np.ndarray) -> np.ndarray:
     """Distance (m, float32) from each 1 m cell's centre to the nearest True cell's centre (0 on them; inf when
     there is none).
@@ -361,8 +386,12 @@ class LiveMap:
         clearly shorter and the other does not: a surface seen obliquely comes closer towards that neighbour, so
         the nearest point of this wedge is at the edge they share, and only the quarter of the arc next to it is
         marked; when the next neighbour on that side reads shorter still (the face crosses both edges), only the
-        edge point. Marked whole, that arc lies up to 2.5 m in front of a face seen at 30 m and 60 degrees, and
-        inflated by the margin it closed a street the truth left open."""
+        edge point. Where neither neighbour reads nearer, a corner (or a face seen square on) is the nearest
+        point; when a neighbour and the next one read a face receding from this wedge, the point is placed on
+        that face's line at the reading's range (where both sides see one they must agree within half a metre),
+        else the whole arc is marked. Marked whole, that arc lies up to 2.5 m in front of a face seen at 30 m and
+        60 degrees, and inflated by the margin it closed a street the truth left open; across a wall's corner it
+        reaches a metre past the end, into the way round it."""
         c, d = centres[unexplained], dist[unexplained]
         lo, hi = c - half, c + half
         if half > FINE_HALF_RAD or len(c) == 0:
@@ -386,9 +415,24 @@ class LiveMap:
         with np.errstate(invalid="ignore"):
             run = ((nearer_left & (far_left < left - NEIGHBOUR_MARGIN_M))
                    | (nearer_right & (far_right < right - NEIGHBOUR_MARGIN_M)))
-        edge = np.where(run, np.minimum(EDGE_POINT_ARC_M / np.maximum(d, 1.0), 0.5 * half), 0.5 * half)
+        point = np.minimum(EDGE_POINT_ARC_M / np.maximum(d, 1.0), 0.5 * half)
+        edge = np.where(run, point, 0.5 * half)
         hi = np.where(nearer_left, lo + edge, hi)
         lo = np.where(nearer_right, hi - edge, lo)
+        # Neither neighbour nearer: a corner (or a face seen square on) is the wedge's nearest point. Where a
+        # neighbour and the next one read a face receding from this wedge, that face's line through their edge
+        # points, carried on into this wedge to the reading's range, is where its corner stands.
+        with np.errstate(invalid="ignore"):
+            level = ~(left < d - NEIGHBOUR_MARGIN_M) & ~(right < d - NEIGHBOUR_MARGIN_M)
+        from_left = _along_face(c - half, c - 3.0 * half, left, far_left, d, c, half)
+        from_right = _along_face(c + half, c + 3.0 * half, right, far_right, d, c, half)
+        both = np.isfinite(from_left) & np.isfinite(from_right)
+        agree = both & (np.abs(_wrap(from_left - from_right)) * d <= 0.5)
+        corner = np.where(agree, from_left + 0.5 * _wrap(from_right - from_left),
+                          np.where(both, np.nan, np.where(np.isfinite(from_left), from_left, from_right)))
+        located = level & np.isfinite(corner)
+        lo = np.where(located, corner - 0.5 * point, lo)
+        hi = np.where(located, corner + 0.5 * point, hi)
         return lo, hi
 
     def _arc_cells(self, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, dist: np.ndarray,

@@ -404,8 +404,8 @@ class LiveMap:
         left = np.array([reading.get(int((k - 1) % count), math.nan) for k in mine])
         right = np.array([reading.get(int((k + 1) % count), math.nan) for k in mine])
         with np.errstate(invalid="ignore"):
-            nearer_left = (left < d - NEIGHBOUR_MARGIN_M) & ~(right < d - NEIGHBOUR_MARGIN_M)
-            nearer_right = (right < d - NEIGHBOUR_MARGIN_M) & ~(left < d - NEIGHBOUR_MARGIN_M)
+            left_nearer, right_nearer = left < d - NEIGHBOUR_MARGIN_M, right < d - NEIGHBOUR_MARGIN_M
+        nearer_left, nearer_right = left_nearer & ~right_nearer, right_nearer & ~left_nearer
         # A run of three (the next neighbour on that side reads shorter still): a face crossing both shared edges,
         # so this wedge's nearest point is the edge point itself. The quarter arc at a grazing angle lies up to
         # 0.6 m in front of the face, a cell too near: one such cell closed a passage one cell wide past a wall's
@@ -422,15 +422,13 @@ class LiveMap:
         # Neither neighbour nearer: a corner (or a face seen square on) is the wedge's nearest point. Where a
         # neighbour and the next one read a face receding from this wedge, that face's line through their edge
         # points, carried on into this wedge to the reading's range, is where its corner stands.
-        with np.errstate(invalid="ignore"):
-            level = ~(left < d - NEIGHBOUR_MARGIN_M) & ~(right < d - NEIGHBOUR_MARGIN_M)
         from_left = _along_face(c - half, c - 3.0 * half, left, far_left, d, c, half)
         from_right = _along_face(c + half, c + 3.0 * half, right, far_right, d, c, half)
         both = np.isfinite(from_left) & np.isfinite(from_right)
         agree = both & (np.abs(_wrap(from_left - from_right)) * d <= 0.5)
         corner = np.where(agree, from_left + 0.5 * _wrap(from_right - from_left),
                           np.where(both, np.nan, np.where(np.isfinite(from_left), from_left, from_right)))
-        located = level & np.isfinite(corner)
+        located = ~left_nearer & ~right_nearer & np.isfinite(corner)
         lo = np.where(located, corner - 0.5 * point, lo)
         hi = np.where(located, corner + 0.5 * point, hi)
         return lo, hi

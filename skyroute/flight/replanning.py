@@ -680,6 +680,10 @@ class ReplanningMixin:
         job = job_of(here, np.vstack([here, ahead[1:]]))  # the route just replanned, from one poll further on
         if job is None:
             return
+        self._run_on_worker(job)
+
+    def _run_on_worker(self, job: Callable) -> None:
+        """Start ``job`` on the refinement's worker thread (made on first use); :meth:`_take_refined` collects it."""
         if self._refine_pool is None:
             self._refine_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="refine")
         self._refining = self._refine_pool.submit(job)
@@ -703,10 +707,8 @@ class ReplanningMixin:
         job = job_of(here, rest)
         if job is None:
             return
-        if self._refine_pool is None:
-            self._refine_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="refine")
         self._reroute_from_m = float(np.sum(np.hypot(*np.diff(rest, axis=0).T)))
-        self._refining = self._refine_pool.submit(job)
+        self._run_on_worker(job)
 
     def _take_rerouted(self, p, route, from_m: float) -> None:
         """A reopened way (:meth:`_reroute_if_reopened`) still clear from here becomes the route (raises

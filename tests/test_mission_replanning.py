@@ -16,7 +16,7 @@ from skyroute.cityedit import enclose_goal
 from skyroute.flight import mission as m
 from skyroute.flight.mission import MissionEvent as E
 from skyroute.flight.mission import MissionState as S
-from skyroute.flight.replanning import speed_to_stop_within_mps
+from skyroute.flight.replanning import speed_to_stop_within_mps, turn_lead_in_m
 from skyroute.planning.cspace import create_grid
 from skyroute.planning.errors import PlanningError
 from skyroute.planning.grid import GridMap
@@ -150,6 +150,26 @@ def test_the_vehicle_never_outruns_a_short_sensor(sighted):
         assert cruise <= cap + 0.5
     else:  # the same flight at its schedule
         assert cruise > cap + 2.0
+
+
+@pytest.mark.parametrize("round_trip_s", [0.0, 0.8])
+def test_a_slow_link_counts_its_round_trip_as_reaction_time(round_trip_s):
+    """A reading arrives half the link's round trip late and the brake setpoint takes the other half: the sight
+    cap, the braking rule and the lead-in before a turn count it as reaction time (``_reaction_s``). 10 m seen free
+    ahead at 3 m/s^2, half the 3 m margin to spare: 6.3 m/s over a fast link, 4.6 m/s over a 0.8 s round trip
+    (300 ms each way took an ArduPilot-personality flight to 3.4 m from a wall with a 5 m margin)."""
+    clock = FakeClock()
+    v = FakeVehicle(clock)
+    v.sensing, v.round_trip_s = True, round_trip_s
+    seen = SimpleNamespace(seen_free_m=lambda north, east, d_north, d_east, max_m: min(10.0, max_m))
+    mission = make_mission(v, clock, straight_plan([]), obstacles=seen, replan_margin_m=SAFETY)
+    assert mission._reaction_s() == pytest.approx(0.3 + round_trip_s)
+    cap = mission._sight_cap_mps(SimpleNamespace(north_m=0.0, east_m=0.0), (1.0, 0.0))
+    assert cap == pytest.approx(speed_to_stop_within_mps(10.0 - 0.5 * SAFETY, 3.0, 0.3 + round_trip_s))
+    assert cap == pytest.approx(6.30 if round_trip_s == 0.0 else 4.57, abs=0.01)
+    v.telemetry.local_v_north_mps = 10.0
+    lead = mission._lead_in_m(np.array([10.0, 0.0]), (0.0, 0.0), _route((0.0, 0.0), (0.0, 20.0)).waypoints)
+    assert lead == pytest.approx(turn_lead_in_m(10.0, math.pi / 2, 3.0, 3.0, 0.3 + round_trip_s))
 
 
 def test_a_goal_at_the_edge_of_the_map_is_reached_though_nothing_beyond_the_edge_is_ever_seen():

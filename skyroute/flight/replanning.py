@@ -430,14 +430,15 @@ class ReplanningMixin:
         of 0 held the vehicle still short of its goal until the leg timed out.
 
         The braking is :func:`braking_distance_m`'s, as for a replan's, with the autopilot's response beyond
-        PX4's 0.6 s (``brake_lag_s``; ArduCopter's ~1 s) added to its reaction time: that rule was measured on
-        PX4 (braked replans keep more than the margin), and a vehicle slower to slow down needs that much more."""
+        PX4's 0.6 s and the link's round trip added to its reaction time (:meth:`_reaction_s`): that rule was
+        measured on PX4 over a fast link (braked replans keep more than the margin), and a vehicle slower to slow
+        down, or told later, needs that much more."""
         seen_fn = getattr(self.sensing.obstacles, "seen_free_m", None)
         horizontal = math.hypot(float(direction_ne[0]), float(direction_ne[1]))
         if seen_fn is None or not self.sensing.active or horizontal < 1e-6:
             return math.inf
         decel, spare = self.speeds.accel_mps2, 0.5 * self.replan_margin_m
-        reaction = 0.3 + max(0.0, float(self.brake_lag_s) - PX4_RESPONSE_S)
+        reaction = self._reaction_s()
         need = braking_distance_m(self.speeds.cruise_mps * 1.5, decel, reaction) + spare
         seen = float(seen_fn(p.north_m, p.east_m, direction_ne[0] / horizontal, direction_ne[1] / horizontal, need))
         if seen >= need:
@@ -461,7 +462,8 @@ class ReplanningMixin:
         speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
         # The vehicle may stop short of the obstacle on the old path; if not, it still need not stop when the new
         # route leads straight on, away from the obstacle, slowly enough ahead (:meth:`_turn_onto`)
-        stops_short = can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m)
+        stops_short = can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m,
+                                       self._reaction_s())
         braked = False
         target = self._target_ne
         lead_in = self._lead_in_ne = None
@@ -488,9 +490,9 @@ class ReplanningMixin:
                 route, lead_in = turn
                 break
             if not stops_short:
+                decel = self.speeds.accel_mps2
                 log.info("braking first: %.1f m/s needs %.1f m to stop at %.1f m/s^2, %.1f m ahead (%s)", speed,
-                         braking_distance_m(speed, self.speeds.accel_mps2), self.speeds.accel_mps2,
-                         blockage.along_m, blockage.reason)
+                         braking_distance_m(speed, decel, self._reaction_s()), decel, blockage.along_m, blockage.reason)
             braked = True
             self._brake()  # and plan again from where it stopped
         self._lead_in_ne = lead_in
@@ -576,8 +578,18 @@ class ReplanningMixin:
             return 0.0
         leg = legs[far[0]] / lengths[far[0]]
         turn = math.acos(max(-1.0, min(1.0, float(velocity_ne @ leg) / speed)))
-        reaction = 0.3 + max(0.0, float(self.brake_lag_s) - PX4_RESPONSE_S)
-        return turn_lead_in_m(speed, turn, self.speeds.accel_mps2, self.speeds.lateral_accel_mps2, reaction)
+        return turn_lead_in_m(speed, turn, self.speeds.accel_mps2, self.speeds.lateral_accel_mps2,
+                              self._reaction_s())
+
+    def _reaction_s(self) -> float:
+        """Seconds (the autopilot's) from a reading's capture to the autopilot braking on our answer, on top of
+        the braking itself: 0.3 s (the rule measured on PX4, whose velocity response is ``PX4_RESPONSE_S``), the
+        autopilot's response beyond PX4's (``brake_lag_s``; ArduCopter's ~1 s), and the link's round trip (a
+        reading arrives half of it late, the brake setpoint takes the other half). Without the round trip, 300 ms
+        of latency each way took an ArduPilot-personality flight to 3.4 m from a wall its 45 degree sectors
+        showed late (5 m margin)."""
+        round_trip = float(getattr(self.vehicle, "round_trip_s", 0.0) or 0.0)
+        return 0.3 + max(0.0, float(self.brake_lag_s) - PX4_RESPONSE_S) + self._autopilot_rate() * round_trip
 
     def _flight_waypoints(self, waypoints: np.ndarray, p) -> np.ndarray:
         from .path import leg_headings

@@ -522,6 +522,44 @@ def test_a_new_route_is_taken_on_the_fly_only_when_the_vehicle_can_slow_down_for
     assert not mission._slows_in_time(12.0, (0.0, 0.0), _route((0.0, 0.0), (15.0, 0.0)).waypoints)  # the goal
 
 
+def _lead_in_mission(free: bool, first_leg_m: float):
+    """A mission flying north at 12 m/s whose obstacle map plans, from any point, ``first_leg_m`` 15 degrees right of
+    north, then a right angle to the right and 40 m on; ``segment_free`` answers ``free``. Returns it and the route
+    from the origin."""
+    turn = math.radians(15.0)
+
+    def replan(p):
+        q = (p[0] + first_leg_m * math.cos(turn), p[1] + first_leg_m * math.sin(turn))
+        return _route(p, q, (q[0] - 40.0 * math.sin(turn), q[1] + 40.0 * math.cos(turn)))
+
+    clock = FakeClock()
+    v = FakeVehicle(clock)
+    obstacles = SimpleNamespace(replan=replan, segment_free=lambda a, b: free)
+    mission = make_mission(v, clock, straight_plan([]), obstacles=obstacles, replan_errors=(PlanningError,))
+    v.telemetry.local_v_north_mps, v.telemetry.local_v_east_mps = 12.0, 0.0
+    return mission, replan((0.0, 0.0))
+
+
+def test_a_lead_in_is_taken_only_when_the_vehicle_can_slow_down_for_every_corner_after_it():
+    """At 12 m/s north, a new route turning 15 degrees right at once needs ~13 m straight on to slow down for
+    the turn (3 m/s^2, 1 m swing). Where that lead-in is free (margins included) and the vehicle can then slow down
+    for every corner after it, the route is taken from the lead-in's end without a stop; not when the lead-in is
+    not free, nor when the route's right angle comes 10 m after it (from ~9 m/s that needs ~13 m: before, only the
+    turn onto the first leg was checked), nor when the vehicle could not have stopped short of the old path's
+    obstacle (such a lead-in is about a stop: a stop and a plan from there use what was seen meanwhile)."""
+    mission, route = _lead_in_mission(free=True, first_leg_m=20.0)
+    ahead, point = mission._turn_onto(route, (0.0, 0.0), None)
+    assert 10.0 < point[0] < 16.0 and point[1] == pytest.approx(0.0)  # straight on, north
+    assert ahead.waypoints[0, :2] == pytest.approx(point)
+    assert ahead.waypoints[1, 1] == pytest.approx(20.0 * math.sin(math.radians(15.0)))  # then 15 degrees right
+    blocked, route = _lead_in_mission(free=False, first_leg_m=20.0)
+    assert blocked._turn_onto(route, (0.0, 0.0), None) is None
+    hurried, route = _lead_in_mission(free=True, first_leg_m=10.0)
+    assert hurried._turn_onto(route, (0.0, 0.0), None) is None
+    late, route = _lead_in_mission(free=True, first_leg_m=20.0)
+    assert late._turn_onto(route, (0.0, 0.0), None, stops_short=False) is None
+
+
 class _PhantomWallVehicle(SensingVehicle):
     """Reads the wall across the central street in three scans as soon as it comes within the sensor's 30 m,
     and never again (noise that looks like a wall): the layer confirms it, then sees the street free and drops it."""

@@ -539,18 +539,23 @@ class ReplanningMixin:
             return None
         point = (here[0] + velocity[0] / speed * lead, here[1] + velocity[1] / speed * lead)
         free = getattr(self.sensing.obstacles, "segment_free", None)
-        if free is not None and free(here, point):
-            try:
-                ahead = self._route_from(point, target)
-            except self.replan_errors:
-                ahead = None
-            if (ahead is not None and self._lead_in_m(velocity, point, ahead.waypoints) <= lead + 0.5
-                    and self._slows_in_time(speed, here, np.vstack([ahead.waypoints[:1], ahead.waypoints]))):
-                log.info("turning onto the new route at %.1f m/s: %.0f m straight on to slow down first", speed, lead)
-                return ahead, point
-        log.info("turning onto the new route at %.1f m/s needs %.0f m straight on, not free: braking first",
-                 speed, lead)
-        return None
+        if free is None or not free(here, point):
+            log.info("turning onto the new route at %.1f m/s needs %.0f m straight on, not free: braking first",
+                     speed, lead)
+            return None
+        try:
+            ahead = self._route_from(point, target)
+        except self.replan_errors:
+            ahead = None
+        if ahead is None or self._lead_in_m(velocity, point, ahead.waypoints) > lead + 0.5:
+            log.info("no route from %.0f m straight on that %.1f m/s can turn onto: braking first", lead, speed)
+            return None
+        if not self._slows_in_time(speed, here, np.vstack([ahead.waypoints[:1], ahead.waypoints])):  # here, point, ..
+            log.info("the route after %.0f m straight on turns sooner than %.1f m/s can slow down for: braking first",
+                     lead, speed)
+            return None
+        log.info("turning onto the new route at %.1f m/s: %.0f m straight on to slow down first", speed, lead)
+        return ahead, point
 
     def _slows_in_time(self, speed_mps: float, start_ne, waypoints: np.ndarray, tolerance_m: float = 1.0) -> bool:
         """Whether a vehicle at ``speed_mps`` leaving ``start_ne`` along the first leg of ``waypoints`` (map frame)

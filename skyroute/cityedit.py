@@ -121,7 +121,8 @@ def walls_across_route(obstacles: np.ndarray, start_ne: Sequence[float], goal_ne
         If the original map has no route; or, with ``keep_reachable``, no draw of ``attempts`` left the goal
         reachable (the message says so).
     ValueError
-        If the route is too short to hold ``count`` walls clear of its corners and ends.
+        If the route is too short to hold ``count`` walls clear of its corners and ends and of each other (no
+        draw of ``attempts`` spaced them all out: before, a draw that could not returned fewer walls than asked).
     """
     obstacles = np.asarray(obstacles, dtype=float)
     route = GridMap.build(obstacles, altitude_m, safety_m).plan(start_ne, goal_ne, snap_start=True).waypoints
@@ -133,6 +134,7 @@ def walls_across_route(obstacles: np.ndarray, start_ne: Sequence[float], goal_ne
     if len(candidates) < count:
         raise ValueError(f"the route ({len(route)} waypoints) has too little straight street for {count} wall(s)")
     rng = np.random.default_rng(seed)
+    placed = False
     for _ in range(attempts):
         chosen: list[tuple[np.ndarray, np.ndarray]] = []
         for k in rng.permutation(len(candidates)):
@@ -141,11 +143,16 @@ def walls_across_route(obstacles: np.ndarray, start_ne: Sequence[float], goal_ne
                 chosen.append((p, u))
             if len(chosen) == count:
                 break
+        if len(chosen) < count:
+            continue  # this order spaced out fewer walls than asked for; another may fit them all
+        placed = True
         walls = np.array([_wall_at(footprint, north_offset, east_offset, p, u, thickness_m=thickness_m,
                                    height_m=height_m, max_half_m=max_half_m) for p, u in chosen]).reshape(-1, 6)
         changed = np.vstack([obstacles, walls])
         if not keep_reachable or _reachable(changed, start_ne, goal_ne, altitude_m, safety_m):
             return CityChange(changed, walls, (), route)
+    if not placed:
+        raise ValueError(f"the route has too little straight street for {count} wall(s) {spacing:g} m apart")
     raise PlanningError(f"no draw of {count} wall(s) across the route in {attempts} attempts left the goal "
                         "reachable; try fewer walls or another seed")
 

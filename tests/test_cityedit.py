@@ -56,6 +56,19 @@ def test_every_returned_city_keeps_the_goal_reachable():
         GridMap.build(change.obstacles, 5, 3).plan(start, goal, snap_start=True)  # raises if unreachable
 
 
+def test_a_city_has_as_many_walls_as_asked_for_or_none():
+    """Walls stand at least 3 margins plus a wall apart (here 20 m) on the route's straight stretches, clear of its
+    ends: 170 m up the central street hold 7, never 8. Asked for more than fit, a draw used to return the ones it
+    could space out; now every draw must place them all, or the route is refused for too little straight street."""
+    start, goal = (-85.0, 0.0), (85.0, 0.0)
+    for count in (1, 3, 7):
+        change = walls_across_route(BLOCKS, start, goal, altitude_m=5, safety_m=3, count=count, seed=1,
+                                    keep_reachable=False)
+        assert len(change.added) == count
+    with pytest.raises(ValueError, match="too little straight street for 8 wall"):
+        walls_across_route(BLOCKS, start, goal, altitude_m=5, safety_m=3, count=8, seed=1, keep_reachable=False)
+
+
 def test_an_enclosed_goal_is_free_but_unreachable():
     goal = (85.0, 85.0)
     ring = enclose_goal(goal, ring_m=8.0, height_m=30.0)

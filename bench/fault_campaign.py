@@ -7,17 +7,24 @@ and a fresh client process: once with no fault (the baseline) and once with the 
 - ``latency200``: 200 ms latency each way
 - ``outage3``: a 3 s outage mid-flight (the socket stays open; everything is dropped)
 
-(latencies and the outage in wall-clock time, as the client meets them: the sim gets them times its speed-up)
 - ``loss5_latency100_wind``: 5 % loss, 100 ms latency, 4 m/s wind with 1 m/s gusts
 
+(latencies and the outage in wall-clock time, as the client meets them: the sim gets them times its speed-up, so
+at speed-up 5 the vehicle meets 200 ms as a second each way). Two more mixes, outside the default rotation
+(``--mixes``): ``latency300`` and ``sensor_noise_dropout`` (0.3 m range noise, 20 % of the sectors lost).
+With ``--walls N`` each mission is flown in a changed city, N tall walls across the route the map gives it
+(``skyroute.cityedit``; the sim's truth, the client keeps the map), baseline and fault flight alike.
+
 The sim's report is the truth: completion (exit 0 and landed), landing error (sim touchdown to the goal, with a
-local WGS84 approximation written here), collisions, minimum clearance, airborne time (simulated seconds: the
-latency mix is judged as airborne / the same mission's baseline, target <= 1.3), and whether the client's logs
-are complete (a navigation log that ends with the outcome, a tlog). One JSON document and a table.
+local WGS84 approximation written here), collisions, minimum clearance, airborne time (simulated seconds, against
+the same mission's baseline; the client never flies faster than it can stop within what its sensor has seen,
+counting the link's round trip, so latency costs time: ~1.3-1.4x for ``latency200`` at speed-up 5), and whether
+the client's logs are complete (a navigation log that ends with the outcome, a tlog). One JSON document and a table.
 
     python bench/fault_campaign.py                       # 10 missions x 2 flights, SF map, speed-up 5
     python bench/fault_campaign.py --missions 4 --map colliders.csv --out /tmp/campaign.json
     python bench/fault_campaign.py --autopilot ardupilot  # the same against the ArduPilot personality
+    python bench/fault_campaign.py --walls 3 --mixes latency300 sensor_noise_dropout --autopilot ardupilot
 """
 
 from __future__ import annotations
@@ -40,8 +47,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from skyroute.cityedit import walls_across_route  # noqa: E402
+from skyroute.citygen import write_colliders  # noqa: E402
 from skyroute.cli.exits import UserError  # noqa: E402
 from skyroute.cli.setting import check_endpoint, load_setting, make_plan  # noqa: E402
+from skyroute.maps import read_colliders  # noqa: E402
+from skyroute.planning.errors import PlanningError  # noqa: E402
 from tests.geodesy import distance_m  # noqa: E402 (the campaign's own WGS84, not the client's)
 from tests.geodesy import ned_to_latlon as to_latlon  # noqa: E402
 
@@ -51,7 +62,11 @@ MIXES = {
     "latency200": ["--latency", "200"],
     "outage3": [],  # --outage T,3 with T mid-flight, per mission
     "loss5_latency100_wind": ["--packet-loss", "5", "--latency", "100", "--wind", "3,-2.6", "--gust", "1"],
+    # not in the default rotation (--mixes): they matter most where the sensor finds what the map lacks (--walls)
+    "latency300": ["--latency", "300"],
+    "sensor_noise_dropout": ["--sensor-noise", "0.3", "--sensor-dropout", "20"],
 }
+DEFAULT_MIXES = ["loss10", "latency200", "outage3", "loss5_latency100_wind"]
 
 
 def default_map() -> Path:
@@ -103,8 +118,22 @@ def sim_fault_time_is_simulated() -> bool:
     return "simulated time" in " ".join(text.split())
 
 
+def changed_city(map_path: Path, mission: dict, walls: int, seed: int, out: Path) -> Path | None:
+    """Write a copy of the map with ``walls`` tall walls across the route the map gives ``mission`` (the sim's
+    truth; the client keeps the map) to ``out``; None when no draw leaves the goal reachable or the route has too
+    little straight street (``skyroute.cityedit.walls_across_route``)."""
+    city = read_colliders(map_path)
+    try:
+        change = walls_across_route(city.obstacles, mission["start_ne"], mission["goal_ne"], altitude_m=ALT_M,
+                                    safety_m=SAFETY_M, count=walls, seed=seed)
+    except (PlanningError, ValueError):
+        return None
+    write_colliders(out, change.obstacles, city.lat0_deg, city.lon0_deg)
+    return out
+
+
 def fly_once(mission: dict, mix: str, *, map_path: Path, speedup: float, seed: int, workdir: Path,
-             simulated_faults: bool, autopilot: str = "px4") -> dict:
+             simulated_faults: bool, autopilot: str = "px4", truth_path: Path | None = None) -> dict:
     port = free_port()
     report_path = workdir / "report.json"
     # The mixes are what a real link does in real time. A sim whose faults run on its own clock at speed-up N
@@ -123,7 +152,8 @@ def fly_once(mission: dict, mix: str, *, map_path: Path, speedup: float, seed: i
     if simulated_faults:
         faults.append("--scale-timeouts")
     lat, lon = mission["start"]
-    sim_cmd = [sys.executable, "-m", "sim", "--map", str(map_path), "--port", str(port), "--strict", "--speedup",
+    sim_cmd = [sys.executable, "-m", "sim", "--map", str(truth_path or map_path), "--port", str(port), "--strict",
+               "--speedup",
                f"{speedup:g}", "--start", f"{lat:.8f},{lon:.8f}", "--report", str(report_path), "--seed",
                str(seed), "--autopilot", autopilot, "-q", *faults]
     sim = subprocess.Popen(sim_cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
@@ -201,7 +231,11 @@ def main(argv=None) -> int:
     parser.add_argument("--map", type=Path, default=default_map(), help="colliders.csv (default: the SF map)")
     parser.add_argument("--speedup", type=float, default=5.0, help="the sim's speed-up")
     parser.add_argument("--seed", type=int, default=1, help="seed for the missions and the sims")
-    parser.add_argument("--mixes", nargs="+", default=list(MIXES), choices=list(MIXES), help="fault mixes to rotate")
+    parser.add_argument("--mixes", nargs="+", default=DEFAULT_MIXES, choices=list(MIXES),
+                        help="fault mixes to rotate")
+    parser.add_argument("--walls", type=int, default=0,
+                        help="fly each mission in a changed city: this many tall walls across the map's route (the "
+                             "sim's truth; the client keeps the map); missions where no draw fits are skipped")
     parser.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
                         help="the sim's personality (conventions, parameters, sensor messages)")
     parser.add_argument("--out", type=Path, default=None, help="write the flights as JSON here")
@@ -213,11 +247,19 @@ def main(argv=None) -> int:
     flights = []
     with tempfile.TemporaryDirectory(prefix="skyroute-campaign-") as tmp:
         for k, mission in enumerate(missions):
+            truth = None
+            if args.walls:
+                truth = changed_city(args.map, mission, args.walls, args.seed + k, Path(tmp) / f"city-{k:03d}.csv")
+                if truth is None:
+                    print(f"mission {k} skipped: no {args.walls} walls across its route leave the goal reachable",
+                          flush=True)
+                    continue
             for mix in ("none", args.mixes[k % len(args.mixes)]):
                 workdir = Path(tmp) / f"{k:03d}-{mix}"
                 workdir.mkdir()
                 flight = fly_once(mission, mix, map_path=args.map, speedup=args.speedup, seed=args.seed + k,
-                                  workdir=workdir, simulated_faults=simulated, autopilot=args.autopilot)
+                                  workdir=workdir, simulated_faults=simulated, autopilot=args.autopilot,
+                                  truth_path=truth)
                 flight.update(mission=k, planned_m=round(mission["planned_m"], 1))
                 flights.append(flight)
                 print(f"mission {k} {mix:22s} exit {flight['exit']} landing error {flight['landing_error_m']:.2f} m "

@@ -11,7 +11,7 @@ and a fresh client process: once with no fault (the baseline) and once with the 
 
 (latencies and the outage in wall-clock time, as the client meets them: the sim gets them times its speed-up, so
 at speed-up 5 the vehicle meets 200 ms as a second each way). Two more mixes, outside the default rotation
-(``--mixes``): ``latency300`` and ``sensor_noise_dropout`` (0.3 m range noise, 20 % of the sectors lost).
+(``--mixes``): ``latency100`` and ``sensor_noise_dropout`` (0.3 m range noise, 20 % of the sectors lost).
 With ``--walls N`` each mission is flown in a changed city, N tall walls across the route the map gives it
 (``skyroute.cityedit``; the sim's truth, the client keeps the map), baseline and fault flight alike.
 
@@ -24,7 +24,7 @@ the client's logs are complete (a navigation log that ends with the outcome, a t
     python bench/fault_campaign.py                       # 10 missions x 2 flights, SF map, speed-up 5
     python bench/fault_campaign.py --missions 4 --map colliders.csv --out /tmp/campaign.json
     python bench/fault_campaign.py --autopilot ardupilot  # the same against the ArduPilot personality
-    python bench/fault_campaign.py --walls 3 --mixes latency300 sensor_noise_dropout --autopilot ardupilot
+    python bench/fault_campaign.py --walls 3 --mixes latency100 sensor_noise_dropout --autopilot ardupilot
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ MIXES = {
     "outage3": [],  # --outage T,3 with T mid-flight, per mission
     "loss5_latency100_wind": ["--packet-loss", "5", "--latency", "100", "--wind", "3,-2.6", "--gust", "1"],
     # not in the default rotation (--mixes): they matter most where the sensor finds what the map lacks (--walls)
-    "latency300": ["--latency", "300"],
+    "latency100": ["--latency", "100"],
     "sensor_noise_dropout": ["--sensor-noise", "0.3", "--sensor-dropout", "20"],
 }
 DEFAULT_MIXES = ["loss10", "latency200", "outage3", "loss5_latency100_wind"]

@@ -168,6 +168,12 @@ def can_turn_in_time(blockage: Blockage | None, speed_mps: float, decel_mps2: fl
     return braking_distance_m(speed_mps, decel_mps2, reaction_s) <= room
 
 
+def _after_lead_in(waypoints: np.ndarray) -> np.ndarray:
+    """A route planned from a lead-in's end (its first row), flown from the vehicle: the first row again, in front,
+    for the vehicle's own position (which the mission writes there), so the lead-in is the first leg."""
+    return np.vstack([waypoints[:1], waypoints])
+
+
 def turn_lead_in_m(speed_mps: float, turn_rad: float, decel_mps2: float, lateral_accel_mps2: float,
                    reaction_s: float = 0.3, overshoot_m: float = 1.0) -> float:
     """How far (m) a vehicle at ``speed_mps`` must fly straight on, slowing down, before it can turn by
@@ -463,8 +469,8 @@ class ReplanningMixin:
         speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
         # The vehicle may stop short of the obstacle on the old path; if not, it still need not stop when the new
         # route leads straight on, away from the obstacle, slowly enough ahead (:meth:`_turn_onto`)
-        stops_short = can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m,
-                                       self._reaction_s())
+        reaction = self._reaction_s()
+        stops_short = can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m, reaction)
         braked = False
         target = self._target_ne
         lead_in = self._lead_in_ne = None
@@ -493,11 +499,11 @@ class ReplanningMixin:
             if not stops_short:
                 decel = self.speeds.accel_mps2
                 log.info("braking first: %.1f m/s needs %.1f m to stop at %.1f m/s^2, %.1f m ahead (%s)", speed,
-                         braking_distance_m(speed, decel, self._reaction_s()), decel, blockage.along_m, blockage.reason)
+                         braking_distance_m(speed, decel, reaction), decel, blockage.along_m, blockage.reason)
             braked = True
             self._brake()  # and plan again from where it stopped
         self._lead_in_ne = lead_in
-        waypoints = route.waypoints if lead_in is None else np.vstack([route.waypoints[:1], route.waypoints])
+        waypoints = route.waypoints if lead_in is None else _after_lead_in(route.waypoints)
         waypoints = self._flight_waypoints(waypoints, p)
         self._pending = ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
                                      float(route.plan_ms), math.nan, braked, waypoints)
@@ -550,7 +556,7 @@ class ReplanningMixin:
         if ahead is None or self._lead_in_m(velocity, point, ahead.waypoints) > lead + 0.5:
             log.info("no route from %.0f m straight on that %.1f m/s can turn onto: braking first", lead, speed)
             return None
-        if not self._slows_in_time(speed, here, np.vstack([ahead.waypoints[:1], ahead.waypoints])):  # here, point, ..
+        if not self._slows_in_time(speed, here, _after_lead_in(ahead.waypoints)):
             log.info("the route after %.0f m straight on turns sooner than %.1f m/s can slow down for: braking first",
                      lead, speed)
             return None
@@ -797,7 +803,7 @@ class ReplanningMixin:
         waypoints = np.asarray(route.waypoints, float)
         lead_in, self._lead_in_ne = self._lead_in_ne, None
         if lead_in is not None and math.dist(here, lead_in) > 1.0:  # still on the lead-in: keep it
-            waypoints = np.vstack([waypoints[:1], waypoints])
+            waypoints = _after_lead_in(waypoints)
         if self.sensing.obstacles.check(here, waypoints[1:, :2]) is not None:
             log.info("replan: the refined route is blocked by what was seen since; flying the replanned route")
             return

@@ -288,7 +288,7 @@ def test_the_stale_map_prior_steers_away_from_unseen_space_near_an_observed_obst
     live, _ = _live(ISLAND, confirm_hits=1)
     _seen_east_of_the_block(live)
     start, goal = (-50.5, 0.5), (50.5, 0.5)
-    replanner = Replanner(live, goal, ALT, suspect_weight=3.0, suspect_radius_m=30.0)
+    replanner = Replanner(live, goal, ALT, suspect_weight=3.0, suspect_radius_m=60.0)
     fast = replanner.replan(start)
     assert fast.waypoints[:, 1].max() > 40.0  # the plain search takes the short way, past the observed obstacle
     better = replanner.refine(start, fast.waypoints)
@@ -301,6 +301,18 @@ def test_the_stale_map_prior_steers_away_from_unseen_space_near_an_observed_obst
     assert replanner.refine(start, better.waypoints) is None  # nothing better than itself
 
 
+def test_the_prior_costs_unseen_cells_less_the_farther_they_are_from_an_observed_obstacle():
+    live, _ = _live(ISLAND, confirm_hits=1)
+    _seen_east_of_the_block(live)
+    weights = Replanner(live, (50.5, 0.5), ALT, suspect_weight=3.0, suspect_radius_m=60.0).suspect_weights()
+    assert live.hits[live.cell_of(25.5, 55.5)]
+    # West of the hit, unseen, along its row: 3x beside it, 2x halfway out (30 m, on a 4 m coarse grid), 1x past 60 m.
+    beside, halfway, past = (float(weights[live.cell_of(25.5, east)]) for east in (51.5, 25.5, -10.5))
+    assert 3.0 >= beside > 2.8 and halfway == pytest.approx(2.0, abs=0.15) and past == 1.0
+    row = weights[live.cell_of(25.5, 0.0)[0], live.cell_of(0.0, -4.5)[1]:live.cell_of(0.0, 51.5)[1]]
+    assert np.all(np.diff(row) >= 0.0)  # never dearer farther from it
+
+
 def test_the_prior_keeps_the_short_way_when_it_is_off_seen_or_there_is_nothing_observed():
     start, goal = (-50.5, 0.5), (50.5, 0.5)
     live, _ = _live(ISLAND, confirm_hits=1)
@@ -309,10 +321,10 @@ def test_the_prior_keeps_the_short_way_when_it_is_off_seen_or_there_is_nothing_o
     _seen_east_of_the_block(live)
     off = Replanner(live, goal, ALT, suspect_weight=1.0, suspect_radius_m=30.0)
     assert off.refine(start, off.replan(start).waypoints) is None
-    on = Replanner(live, goal, ALT, suspect_weight=3.0, suspect_radius_m=30.0)
+    on = Replanner(live, goal, ALT, suspect_weight=3.0, suspect_radius_m=60.0)
     weights = on.suspect_weights()
     hit = live.cell_of(25.5, 55.5)
-    assert weights[live.cell_of(25.5, 43.5)] == 3.0 and weights[live.cell_of(-40.5, -70.5)] == 1.0
+    assert weights[live.cell_of(-40.5, -70.5)] == 1.0
     assert weights[live.cell_of(25.5, 65.5)] == 1.0  # seen free: no doubt there
     assert live.hits[hit]
     # Seen free all along the short way: the prior has nothing against it.

@@ -12,7 +12,8 @@ from its own structure, a new one from the grid search, which is optimal on the 
 obstacles count as reaching above the altitude (their tops were never seen), so a replan never climbs over them.
 
 :meth:`Replanner.refine` then picks again among the detours under a stale-map prior: unseen cells near observed
-obstacles cost more (a wall seen in part likely continues; a street blocked once is often blocked again), and so do
+obstacles cost more, the nearer the more (a wall seen in part likely continues; a street blocked once is often
+blocked again), and so do
 unseen cells near the route the map chose (:meth:`Replanner.suspect_route`: once the map proved wrong on its own
 route, the rest of that route is the likeliest place for it to be wrong again), searched with per-cell costs;
 slower, so the mission runs it off its loop (:meth:`Replanner.refine_job`).
@@ -42,8 +43,10 @@ from skyroute.planning.pruning import headings_along, line_of_sight, path_length
 from skyroute.planning.search import GridPlanner, load_weighted_search
 
 METHODS = ("grid", "any-angle")
-#: The stale-map prior (:meth:`Replanner.refine`): unseen cells this close to an observed obstacle (m) cost this
-#: many times their length. Chosen on the offline model of the held-out check (bench/bench_replan.py --compare-prior).
+#: The stale-map prior (:meth:`Replanner.refine`): an unseen cell next to an observed obstacle costs this many times
+#: its length, falling linearly with its distance to 1 at this many metres. Weight and radius chosen on the offline
+#: model of the held-out check (bench/bench_replan.py --compare-prior); the linear fall-off (a flat 3x out to 100 m
+#: before) on the same model's 393 fresh missions (WRITEUP, "A prior on what the map gets wrong").
 SUSPECT_WEIGHT, SUSPECT_RADIUS_M = 3.0, 100.0
 #: The prior's second half (:meth:`Replanner.suspect_route`): unseen cells this close to the map's own route (m)
 #: cost this many times their length once an obstacle was observed. Chosen on the same model (WRITEUP).
@@ -75,16 +78,21 @@ class GoalUnreachable(PlanningError):
                          "does not show cut it off" + _fallback_text(fallback_ne))
 
 
-def _within(cells: np.ndarray, radius_m: float) -> np.ndarray:
-    """Cells within ``radius_m`` of a True cell of ``cells`` (1 m cells), measured on a coarse grid of
-    ``_SUSPECT_CELL_M`` cells (a cell counts when its coarse cell is within reach of one holding a True cell)."""
+def _distance_m(cells: np.ndarray) -> np.ndarray:
+    """Metres from each cell to the nearest True cell of ``cells`` (1 m cells), measured on a coarse grid of
+    ``_SUSPECT_CELL_M`` cells (between the coarse cells holding them; 0 in a coarse cell holding one)."""
     f = _SUSPECT_CELL_M
     n, m = cells.shape
     padded = np.zeros((-(-n // f) * f, -(-m // f) * f), bool)
     padded[:n, :m] = cells
     coarse = padded.reshape(padded.shape[0] // f, f, padded.shape[1] // f, f).any(axis=(1, 3))
-    near = ndimage.distance_transform_edt(~coarse) * f <= radius_m
-    return np.repeat(np.repeat(near, f, axis=0), f, axis=1)[:n, :m]
+    distance = ndimage.distance_transform_edt(~coarse) * f
+    return np.repeat(np.repeat(distance, f, axis=0), f, axis=1)[:n, :m]
+
+
+def _within(cells: np.ndarray, radius_m: float) -> np.ndarray:
+    """Cells within ``radius_m`` of a True cell of ``cells`` (:func:`_distance_m`)."""
+    return _distance_m(cells) <= radius_m
 
 
 def _fallback_text(fallback_ne) -> str:
@@ -136,8 +144,9 @@ class Replanner:
     step_m : float
         Sampling step of :meth:`check` along the path (finer than a cell).
     suspect_weight, suspect_radius_m : float
-        The stale-map prior of :meth:`refine`: a cell never seen within ``suspect_radius_m`` of an observed
-        obstacle costs ``suspect_weight`` times its length (1 turns the prior off).
+        The stale-map prior of :meth:`refine`: a cell never seen next to an observed obstacle costs
+        ``suspect_weight`` times its length, falling linearly with its distance to 1 at ``suspect_radius_m``
+        (weight 1 turns the prior off).
     route_weight, route_radius_m : float
         Its second half, once :meth:`suspect_route` named the map's route: a cell never seen within
         ``route_radius_m`` of that route costs ``route_weight`` times its length (1 turns it off).
@@ -338,9 +347,15 @@ class Replanner:
 
     def suspect_weights(self) -> np.ndarray | None:
         """Per-cell cost factors of the prior, ``(n, m)``, or None when it adds nothing (no observed obstacle, or
-        turned off): on cells never seen (neither free nor hit), ``suspect_weight`` within ``suspect_radius_m`` of
-        an observed obstacle cell and ``route_weight`` within ``route_radius_m`` of the map's route
-        (:meth:`suspect_route`), the larger where both hold (distances on a 4 m coarse grid); 1 elsewhere."""
+        turned off): on cells never seen (neither free nor hit), ``suspect_weight`` next to an observed obstacle
+        cell, falling linearly to 1 at ``suspect_radius_m`` from it, and ``route_weight`` within
+        ``route_radius_m`` of the map's route (:meth:`suspect_route`), the larger where both hold (distances on a
+        4 m coarse grid); 1 elsewhere.
+
+        The fall-off, not a flat weight out to the radius: with a flat one, a street just beyond the radius cost
+        a third of one just inside it, and a detour was sent round the far side of that edge whatever lay between
+        (held-out seed 11's mission 3: 100 m north of a wall, 1.57x the true route's metres on the offline model;
+        1.28x with the fall-off)."""
         if not self._prior_applies():
             return None
         return self._weights(self.live.hits, self.live.known)
@@ -353,7 +368,8 @@ class Replanner:
     def _weights(self, hits: np.ndarray, known: np.ndarray) -> np.ndarray:
         weights = np.ones(hits.shape)
         if self.suspect_weight > 1.0 and self.suspect_radius_m > 0.0:
-            weights[_within(hits, self.suspect_radius_m)] = self.suspect_weight
+            near = np.clip(1.0 - _distance_m(hits) / self.suspect_radius_m, 0.0, 1.0)
+            weights += (self.suspect_weight - 1.0) * near
         if self._route_near is not None:
             weights[self._route_near] = np.maximum(weights[self._route_near], self.route_weight)
         weights[known] = 1.0

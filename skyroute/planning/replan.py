@@ -13,10 +13,9 @@ obstacles count as reaching above the altitude (their tops were never seen), so 
 
 :meth:`Replanner.refine` then picks again among the detours under a stale-map prior: unseen cells near observed
 obstacles cost more, the nearer the more (a wall seen in part likely continues; a street blocked once is often
-blocked again), and so do
-unseen cells near the route the map chose (:meth:`Replanner.suspect_route`: once the map proved wrong on its own
-route, the rest of that route is the likeliest place for it to be wrong again), searched with per-cell costs;
-slower, so the mission runs it off its loop (:meth:`Replanner.refine_job`).
+blocked again), and so do unseen cells near the route the map chose (:meth:`Replanner.suspect_route`: once the map
+proved wrong on its own route, the rest of that route is the likeliest place for it to be wrong again), searched
+with per-cell costs; slower, so the mission runs it off its loop (:meth:`Replanner.refine_job`).
 
 When the goal cannot be reached any more, :meth:`Replanner.fallback` finds the nearest safe point that can:
 free on the live grid (and landable, if a landing grid is given), in the vehicle's connected free space.

@@ -103,14 +103,15 @@ async def _fly(plan: Path, port: int) -> dict:
                 "items": [i.command for i in imported.mission_items]}
 
 
-def test_px4_sitl_flies_the_plan_export_in_mission_mode_and_lands_at_the_goal(tmp_path):
-    goal_lat, goal_lon = to_latlon(*GOAL_NE)
-    plan = tmp_path / "mission.plan"
-    subprocess.run([sys.executable, str(ROOT / "motion_planning.py"), "--plan-only", "--goal_lat", f"{goal_lat:.9f}",
-                    "--goal_lon", f"{goal_lon:.9f}", "--alt", "5", "--export", str(plan)],
-                   cwd=tmp_path, check=True, capture_output=True, timeout=120)
+#: What PX4's console says when the host starves SITL of CPU: SIH's simulated sensors time out and PX4 itself
+#: failsafes (blind land where it is). Seen once in a CI run with a flight test on the other worker.
+STARVED = "No valid data from Baro"
+
+
+def _px4_flies(plan: Path, run_dir: Path) -> tuple[dict | None, str, BaseException | None]:
+    """Start a PX4 SITL instance in ``run_dir``, fly ``plan`` in mission mode and stop it: what MAVSDK saw (None
+    when the flight did not end), PX4's console, and the error that ended it early, if any."""
     instance = free_instance()
-    run_dir = tmp_path / "px4"
     bin_dir = run_dir / "bin"
     bin_dir.mkdir(parents=True)
     # PX4's command links (px4-param, ...) are symlinks to px4 in a build; a copy of shared/ may hold them as
@@ -123,18 +124,39 @@ def test_px4_sitl_flies_the_plan_export_in_mission_mode_and_lands_at_the_goal(tm
     env = dict(os.environ, PX4_SYS_AUTOSTART="10040", PX4_SIM_MODEL="sihsim_quadx", PX4_HOME_LAT=str(LAT0),
                PX4_HOME_LON=str(LON0), PX4_HOME_ALT="0", PX4_EKF2_FAST_ALIGN="1")
     env["PATH"] = f"{bin_dir}{os.pathsep}{env.get('PATH', '')}"
-    px4 = subprocess.Popen([str(bin_dir / "px4"), "-d", "-i", str(instance), str(PX4 / "etc")], cwd=run_dir,
-                           env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        flown = asyncio.run(asyncio.wait_for(_fly(plan, 14540 + instance), 360))
-    finally:
-        if px4.poll() is None:
-            os.killpg(px4.pid, signal.SIGTERM)
-            try:
-                px4.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(px4.pid, signal.SIGKILL)
-                px4.wait()
+    console = run_dir / "px4.log"
+    flown, error = None, None
+    with open(console, "w") as out:
+        px4 = subprocess.Popen([str(bin_dir / "px4"), "-d", "-i", str(instance), str(PX4 / "etc")], cwd=run_dir,
+                               env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            flown = asyncio.run(asyncio.wait_for(_fly(plan, 14540 + instance), 360))
+        except (AssertionError, TimeoutError) as exc:
+            error = exc
+        finally:
+            if px4.poll() is None:
+                os.killpg(px4.pid, signal.SIGTERM)
+                try:
+                    px4.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    os.killpg(px4.pid, signal.SIGKILL)
+                    px4.wait()
+    return flown, console.read_text(errors="replace"), error
+
+
+def test_px4_sitl_flies_the_plan_export_in_mission_mode_and_lands_at_the_goal(tmp_path):
+    goal_lat, goal_lon = to_latlon(*GOAL_NE)
+    plan = tmp_path / "mission.plan"
+    subprocess.run([sys.executable, str(ROOT / "motion_planning.py"), "--plan-only", "--goal_lat", f"{goal_lat:.9f}",
+                    "--goal_lon", f"{goal_lon:.9f}", "--alt", "5", "--export", str(plan)],
+                   cwd=tmp_path, check=True, capture_output=True, timeout=120)
+    flown, console, error = _px4_flies(plan, tmp_path / "px4")
+    if STARVED in console and (error is not None
+                               or distance_m(flown["lat"], flown["lon"], goal_lat, goal_lon) >= 3.0):
+        # PX4 itself gave up on its simulated sensors (the host, not the plan): once more, and only once.
+        flown, console, error = _px4_flies(plan, tmp_path / "px4-again")
+    if error is not None:
+        raise AssertionError(f"{error}; PX4's console ends: {console[-1500:]}")
     assert flown["items"][0] == 22 and flown["items"][-1] == 21  # takeoff ... land, as MAVSDK read them
-    assert distance_m(flown["lat"], flown["lon"], goal_lat, goal_lon) < 3.0
+    assert distance_m(flown["lat"], flown["lon"], goal_lat, goal_lon) < 3.0, console[-1500:]
     assert 4.0 < flown["max_alt_m"] < 6.5  # the planned 5 m above home

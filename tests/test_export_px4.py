@@ -10,9 +10,6 @@ started in its own process group and stopped in ``finally``. PX4 SITL runs in re
 from __future__ import annotations
 
 import asyncio
-import os
-import signal
-import socket
 import subprocess
 import sys
 import time
@@ -22,6 +19,7 @@ import pytest
 
 from tests import shared
 from tests.geodesy import distance_m, ned_to_latlon
+from tests.sitl_support import Px4Sitl
 
 ROOT = Path(__file__).resolve().parents[1]
 PX4 = shared.shared_dir() / "sitl" / "px4"
@@ -38,23 +36,6 @@ GOAL_NE = (99.5, 50.5)  # ~120 m from home on the project map, two legs
 def to_latlon(north_m: float, east_m: float) -> tuple[float, float]:
     """``(lat, lon)`` of a point north/east of the map origin (:mod:`tests.geodesy`, independent of ``frames``)."""
     return ned_to_latlon(north_m, east_m, LAT0, LON0)
-
-
-def _udp_free(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
-
-
-def free_instance() -> int:
-    for instance in range(3, 10):  # 0..9 have distinct API ports; 0-2 are left for people running PX4 by hand
-        ports = (14540 + instance, 14580 + instance, 18570 + instance)
-        if not Path(f"/tmp/px4_lock-{instance}").exists() and all(_udp_free(p) for p in ports):
-            return instance
-    pytest.skip("no free PX4 SITL instance")
 
 
 async def _until(check, timeout_s: float, what: str):
@@ -108,40 +89,17 @@ async def _fly(plan: Path, port: int) -> dict:
 STARVED = "No valid data from Baro"
 
 
-def _px4_flies(plan: Path, run_dir: Path) -> tuple[dict | None, str, BaseException | None]:
-    """Start a PX4 SITL instance in ``run_dir``, fly ``plan`` in mission mode and stop it: what MAVSDK saw (None
-    when the flight did not end), PX4's console, and the error that ended it early, if any."""
-    instance = free_instance()
-    bin_dir = run_dir / "bin"
-    bin_dir.mkdir(parents=True)
-    # PX4's command links (px4-param, ...) are symlinks to px4 in a build; a copy of shared/ may hold them as
-    # small files naming their target: link them again beside the binary, where PX4's startup script runs them.
-    (bin_dir / "px4").symlink_to(PX4 / "bin" / "px4")
-    for entry in (PX4 / "bin").iterdir():
-        if entry.name.startswith("px4-") and entry.name != "px4-alias.sh":
-            (bin_dir / entry.name).symlink_to("px4")
-    (bin_dir / "px4-alias.sh").symlink_to(PX4 / "bin" / "px4-alias.sh")
-    env = dict(os.environ, PX4_SYS_AUTOSTART="10040", PX4_SIM_MODEL="sihsim_quadx", PX4_HOME_LAT=str(LAT0),
-               PX4_HOME_LON=str(LON0), PX4_HOME_ALT="0", PX4_EKF2_FAST_ALIGN="1")
-    env["PATH"] = f"{bin_dir}{os.pathsep}{env.get('PATH', '')}"
-    console = run_dir / "px4.log"
-    flown, error = None, None
-    with open(console, "w") as out:
-        px4 = subprocess.Popen([str(bin_dir / "px4"), "-d", "-i", str(instance), str(PX4 / "etc")], cwd=run_dir,
-                               env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+def _px4_flies(plan: Path) -> tuple[dict | None, str, BaseException | None]:
+    """Start a PX4 SITL instance (:class:`~tests.sitl_support.Px4Sitl`), fly ``plan`` in mission mode and stop it:
+    what MAVSDK saw (None when the flight did not end), PX4's console, and the error that ended it early, if any."""
+    with Px4Sitl(home=(LAT0, LON0, 0.0), fast_align=True, instances=range(3, 10)) as px4:
         try:
-            flown = asyncio.run(asyncio.wait_for(_fly(plan, 14540 + instance), 360))
+            flown, error = asyncio.run(asyncio.wait_for(_fly(plan, 14540 + px4.instance), 360)), None
         except (AssertionError, TimeoutError) as exc:
-            error = exc
-        finally:
-            if px4.poll() is None:
-                os.killpg(px4.pid, signal.SIGTERM)
-                try:
-                    px4.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    os.killpg(px4.pid, signal.SIGKILL)
-                    px4.wait()
-    return flown, console.read_text(errors="replace"), error
+            flown, error = None, exc
+        px4.log.flush()
+        console = (px4.dir / "px4.log").read_text(errors="replace")
+    return flown, console, error
 
 
 def test_px4_sitl_flies_the_plan_export_in_mission_mode_and_lands_at_the_goal(tmp_path):
@@ -150,11 +108,11 @@ def test_px4_sitl_flies_the_plan_export_in_mission_mode_and_lands_at_the_goal(tm
     subprocess.run([sys.executable, str(ROOT / "motion_planning.py"), "--plan-only", "--goal_lat", f"{goal_lat:.9f}",
                     "--goal_lon", f"{goal_lon:.9f}", "--alt", "5", "--export", str(plan)],
                    cwd=tmp_path, check=True, capture_output=True, timeout=120)
-    flown, console, error = _px4_flies(plan, tmp_path / "px4")
+    flown, console, error = _px4_flies(plan)
     if STARVED in console and (error is not None
                                or distance_m(flown["lat"], flown["lon"], goal_lat, goal_lon) >= 3.0):
         # PX4 itself gave up on its simulated sensors (the host, not the plan): once more, and only once.
-        flown, console, error = _px4_flies(plan, tmp_path / "px4-again")
+        flown, console, error = _px4_flies(plan)
     if error is not None:
         raise AssertionError(f"{error}; PX4's console ends: {console[-1500:]}")
     assert flown["items"][0] == 22 and flown["items"][-1] == 21  # takeoff ... land, as MAVSDK read them

@@ -238,6 +238,58 @@ def test_any_corner_is_rounded_by_an_arc_tangent_to_both_legs_within_the_cut(tur
     assert p.waypoint_s_m[1] == pytest.approx(0.5 * (p.s_m[1] + p.s_m[-2]), abs=0.5 * chords[0] + 1e-9)
 
 
+def _box_room(lo, hi):
+    """A room_fn for one box (north, east corners lo and hi): each point's horizontal distance to it."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    return lambda p, alt: np.hypot(*np.maximum(np.maximum(lo - p, p - hi), 0.0).T)
+
+
+# The L path turns round a building whose corner stands 6 m inside the turn: (14, 6) from the corner at (20, 0)
+L_INSIDE = _box_room((-50.0, 6.0), (14.0, 50.0))
+
+
+def test_a_corner_with_room_gets_a_wider_arc_that_keeps_the_margin_and_is_faster():
+    plain = fp.smooth_path(L_PATH, corner_cut_m=0.5, cruise_mps=10.0, lateral_accel_mps2=3.0)
+    wide = fp.smooth_path(L_PATH, corner_cut_m=0.5, cruise_mps=10.0, lateral_accel_mps2=3.0,
+                          room_fn=L_INSIDE, room_m=5.0)
+    assert L_INSIDE(wide.points[:, :2], 5.0).min() >= 5.0  # the whole margin, on the arc as on the legs
+    assert wide.segment_speed_mps.min() > 2.0 * plain.segment_speed_mps.min()  # 2.3 -> 5.2 m/s here
+    # the widest: one step (x1.25) wider would come within the margin
+    radius = 3.0 * wide.segment_speed_mps.min() ** 2 / 3.0 / 3.0
+    corner, u_in, u_out = L_PATH[1], np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    wider = fp.widest_radius_m(corner, u_in, u_out, math.pi / 2, radius * 1.25, 1e3, L_INSIDE, 5.0)
+    assert L_INSIDE(fp._arc(corner, u_in, u_out, math.pi / 2, radius * 1.25, 0.1)[:, :2], 5.0).min() < 5.0
+    assert wider == pytest.approx(radius * 1.25)  # no wider one passes either: it starts there and stays
+
+
+def test_a_corner_without_room_keeps_the_cut_and_one_with_plenty_stops_at_cruise_or_half_the_legs():
+    tight = lambda p, alt: np.full(len(p), 4.9)  # noqa: E731  (already within the margin: no wider arc can do better)
+    plain = fp.smooth_path(L_PATH, corner_cut_m=0.5)
+    assert fp.smooth_path(L_PATH, corner_cut_m=0.5, room_fn=tight, room_m=5.0).points == pytest.approx(plain.points)
+    open_air = lambda p, alt: np.full(len(p), np.inf)  # noqa: E731
+    long_l = L_PATH * [10.0, 10.0, 1.0]  # 200 m legs: cruise bounds the radius (v^2 / a = 100 / 3 m)
+    p = fp.smooth_path(long_l, cruise_mps=10.0, lateral_accel_mps2=3.0, room_fn=open_air)
+    assert p.segment_speed_mps.min() == pytest.approx(10.0)
+    short = fp.smooth_path(L_PATH, cruise_mps=10.0, lateral_accel_mps2=3.0, room_fn=open_air)
+    assert short.points[1] == pytest.approx([10.0, 0.0, 5.0])  # the tangent points at half of either leg
+    assert short.points[-2] == pytest.approx([20.0, 10.0, 5.0])
+
+
+def test_max_cut_bounds_how_far_a_widened_arc_leaves_its_legs():
+    open_air = lambda p, alt: np.full(len(p), np.inf)  # noqa: E731
+    long_l = L_PATH * [10.0, 10.0, 1.0]
+    p = fp.smooth_path(long_l, cruise_mps=10.0, lateral_accel_mps2=3.0, room_fn=open_air, max_cut_m=2.5)
+    radius = 2.5 / (1 - math.cos(math.pi / 4))  # the arc whose middle is 2.5 m off both legs
+    assert max(_distance_to_polyline(q, long_l) for q in p.points) <= 2.5 + 1e-9
+    assert p.segment_speed_mps.min() == pytest.approx(math.sqrt(3.0 * radius), rel=1e-6)
+
+
+def test_a_climbing_corner_is_not_widened():
+    climb = np.array([[0.0, 0.0, 5.0], [20.0, 0.0, 5.0], [20.0, 20.0, 15.0]])
+    open_air = lambda p, alt: np.full(len(p), np.inf)  # noqa: E731
+    assert fp.smooth_path(climb, room_fn=open_air).points == pytest.approx(fp.smooth_path(climb).points)
+
+
 def test_one_waypoint_gives_one_point_and_one_waypoint_arc_length():
     p = fp.smooth_path(np.array([[3.0, 4.0, 5.0]]))
     assert p.points.tolist() == [[3.0, 4.0, 5.0]] and p.waypoint_s_m.tolist() == [0.0]
@@ -630,6 +682,41 @@ def make_mission(vehicle, clock, plan_fn, *, vehicle_errors=(Refused,), **kwargs
 @pytest.fixture
 def clock():
     return FakeClock()
+
+
+class _Observed:
+    """Observed obstacles as a mission without a sensor sees them: only their ``version``."""
+
+    version = 0
+
+    def discovered_ne(self):
+        return np.empty((0, 2))
+
+
+@pytest.mark.parametrize("told", [True, False])
+def test_widened_corners_are_rounded_again_when_an_obstacle_is_observed_beside_them(clock, told):
+    """straight_plan's corner (60 N, 0 E) in open air gets a 20 m arc (half the legs); a post observed inside
+    the turn, 6 m off both legs, stands by that arc. Told (the obstacles' version changes), the mission rounds the
+    corner again within the margin; not told, it flies the old arc into the post (the test's control)."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0))  # = map (0, 0)
+    posts, observed = [], _Observed()
+
+    def room(p, alt):
+        return np.full(len(p), np.inf) if not posts else _box_room(*posts[0])(p, alt)
+
+    def observe(dt):
+        if not posts and v.telemetry.north_m + OFFSET.north_m > 20.0:
+            posts.append(((50.0, 6.0), (54.0, 8.0)))
+            observed.version += told
+
+    clock.tickers.append(observe)
+    result = make_mission(v, clock, straight_plan([]), room_fn=room, obstacles=observed).run()
+    assert result.completed and posts
+    clearance = float(room(result.track[:, 1:3], 10.0).min())
+    if told:
+        assert clearance >= 5.0 - 1.0  # the margin, less what the fake's lag cuts (4.3 m)
+    else:
+        assert clearance < 2.5  # 1.6 m
 
 
 # ------------------------------------------------------------------------------------------- the flow

@@ -141,6 +141,14 @@ def fly(
             return reach
         return min(reach, obstacles.clearance_m(north_m, east_m, direction_north, direction_east, reach))
 
+    def room(points_ne: np.ndarray, altitude_m: float) -> np.ndarray:
+        """How far each point stands from the map's buildings, and from the observed obstacles when sensing."""
+        distance = geometry.distance_m(points_ne, altitude_m)
+        if obstacles is None or not obstacles.live.hits.any():
+            return distance
+        seen = Clearance(obstacles.live.hit_boxes(altitude_m), setting.safety_m)
+        return np.minimum(distance, seen.distance_m(points_ne, altitude_m))
+
     try:
         view = open_view(view_port, setting, goal_ne, out)
         say(f"connecting to {connection} ...")
@@ -160,7 +168,7 @@ def fly(
                 drone, plan_from, altitude_m=setting.altitude_m, map_origin=setting.home,
                 no_path_errors=(PlanRefused,), vehicle_errors=(vehicle_mod.VehicleError,),
                 goal_ne=goal_ne, surface_fn=geometry.surface_m, ground_amsl_m=ground_amsl_m,
-                clearance_fn=clearance, progress=say,
+                clearance_fn=clearance, room_fn=room, progress=say,
                 arm_timeout_s=arm_timeout_s, link_lost_timeout_s=link_lost_timeout_s,
                 obstacles=obstacles, position_fix=fix, replan_errors=(PlanningError,),
                 replan_margin_m=setting.safety_m, return_line_fn=geometry.highest_crossed,

@@ -53,7 +53,7 @@ from .errors import (
     VehicleDisarmedInFlight,
 )
 from .landing import LandingMixin
-from .path import SmoothPath, leg_headings, path_length_m, smooth_path
+from .path import RoomFn, SmoothPath, leg_headings, path_length_m, smooth_path
 from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, ReturnLineFn, SurfaceFn, Vehicle
 from .recovery import RecoveryMixin, _Abort, _Resumed
 from .replanning import ObstacleMap, PositionFix, ReplanningMixin, Sensing, _Blocked, _Rerouted
@@ -155,6 +155,11 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         autopilot's geofence must hold that too.
     corner_cut_m, cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps : float
         The flight path (:func:`~.path.smooth_path`), fitted within the autopilot's own limits before flight.
+    room_fn : RoomFn, optional
+        What stands round the path (the map's buildings and the observed obstacles, :data:`~.path.RoomFn`): each
+        corner's arc is widened within it, keeping the whole margin (``replan_margin_m``) from every obstacle, and
+        while the sensor may still find more, never more than half the margin off its legs; the corners are rounded
+        again whenever the observed obstacles change. None: every arc keeps within ``corner_cut_m`` of its legs.
     lead_s, velocity_lag_s : float
         Steering (:func:`~.follower.steer`): the autopilot's response time on top of the link's round trip;
         how far ahead the feed-forward velocity is taken.
@@ -182,7 +187,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                  no_path_errors: tuple[type[BaseException], ...] = (NoPathFound,),
                  goal_ne: Sequence[float] | None = None, surface_fn: SurfaceFn | None = None,
                  ground_amsl_m: float | None = None, clearance_fn: ClearanceFn | None = None,
-                 progress: ProgressFn | None = None, progress_every_s: float = 5.0,
+                 room_fn: RoomFn | None = None, progress: ProgressFn | None = None, progress_every_s: float = 5.0,
                  arm_timeout_s: float = 60.0, arm_retry_s: float = 1.0,
                  takeoff_timeout_s: float = 60.0, leg_timeout_s: float = 60.0, min_speed_mps: float = 1.0,
                  landing_timeout_s: float = 120.0, disarm_timeout_s: float = 15.0,
@@ -209,6 +214,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.vehicle_errors = tuple(vehicle_errors)
         self.goal_ne = None if goal_ne is None else (float(goal_ne[0]), float(goal_ne[1]))
         self.surface_fn, self.ground_amsl_m, self.clearance_fn = surface_fn, ground_amsl_m, clearance_fn
+        self.room_fn, self._rounded_version = room_fn, 0
         self.return_line_fn = return_line_fn
         self.progress = progress or (lambda line: None)
         self.progress_every_s = progress_every_s
@@ -725,11 +731,31 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             self.sleep(self.poll_s)
 
     def _rounded(self, waypoints: np.ndarray) -> SmoothPath:
-        """The path the mission flies through ``waypoints`` (map frame): rounded and speed-scheduled at its speeds."""
+        """The path the mission flies through ``waypoints`` (map frame): rounded and speed-scheduled at its speeds,
+        its corners widened within ``room_fn`` (half a margin off the legs at most while sensing)."""
         s = self.speeds
+        self._rounded_version = self._obstacles_version()
         return smooth_path(waypoints, corner_cut_m=self.corner_cut_m, cruise_mps=s.cruise_mps,
                            accel_mps2=s.accel_mps2, lateral_accel_mps2=s.lateral_accel_mps2,
-                           vertical_mps=s.vertical_mps)
+                           vertical_mps=s.vertical_mps, room_fn=self.room_fn,
+                           room_m=self.replan_margin_m,
+                           max_cut_m=0.5 * self.replan_margin_m if self.sensing.active else math.inf)
+
+    def _obstacles_version(self) -> int:
+        """The observed obstacles' version (``ObstacleMap.version``; 0 without one)."""
+        return int(getattr(self.sensing.obstacles, "version", 0))
+
+    def _rounded_again(self, path: SmoothPath, waypoints: np.ndarray, i: int) -> SmoothPath:
+        """``path``, or the corners rounded again when the observed obstacles changed since it was rounded (an arc
+        widened round what stood there before may not keep the margin any more); progress carried over onto the
+        new one, from the middle of waypoint ``i - 1``'s corner (the last passed)."""
+        if self.room_fn is None or self._obstacles_version() == self._rounded_version:
+            return path
+        path = self._rounded(waypoints)
+        p = self._map_position()
+        since = float(path.waypoint_s_m[i - 1]) if i > 0 else 0.0
+        self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), since)
+        return path
 
     def _follow(self, waypoints: np.ndarray) -> None:
         """Fly the rounded path through ``waypoints`` (see :func:`~.follower.steer`) and stop at the last one."""
@@ -761,6 +787,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             self._sense(p, waypoints, i)
             self._reroute_if_reopened(p, waypoints, i)
             self._take_refined(p)
+            rounded = self._rounded_again(path, waypoints, i)
+            if rounded is not path:
+                path, ref_s = rounded, self._progress_s
             if self.clock() - sent_at < 0.9 * self.poll_s:  # woken early by a reading: checked, nothing to send
                 self._tick(wake_on_sensor=True)
                 continue

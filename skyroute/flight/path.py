@@ -9,6 +9,7 @@ radius ``r``, braking at ``accel_mps2`` before every slower part and before the 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +64,48 @@ def corner_cut_m(turn_rad: float, radius_m: float) -> float:
     0.2929
     """
     return 0.0 if not math.isfinite(radius_m) else radius_m * (1.0 - math.cos(min(turn_rad, math.pi) / 2))
+
+
+#: ``room_fn(points_ne, altitude_m)``: the horizontal distance (m) from each map point ``(north_m, east_m)`` (N, 2)
+#: to the nearest obstacle standing at ``altitude_m`` (m above the map's ground), ``(N,)``.
+RoomFn = Callable[[np.ndarray, float], np.ndarray]
+
+
+def _arc(corner: np.ndarray, u_in: np.ndarray, u_out: np.ndarray, turn_rad: float, radius_m: float,
+         step_m: float) -> np.ndarray:
+    """Points (n+1, 3) every ``step_m`` or less along the arc of ``radius_m`` rounding ``corner`` (3,) from the
+    unit direction ``u_in`` to ``u_out``: from the tangent point on the leg in to the one on the leg out."""
+    p1 = corner - radius_m * math.tan(turn_rad / 2) * u_in
+    centre = p1 + radius_m * (u_out - u_in * float(u_in @ u_out)) / math.sin(turn_rad)
+    e1 = (p1 - centre) / radius_m
+    n = max(2, math.ceil(radius_m * turn_rad / step_m))
+    phi = turn_rad * np.arange(n + 1) / n
+    return centre + radius_m * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * u_in)
+
+
+def widest_radius_m(corner: np.ndarray, u_in: np.ndarray, u_out: np.ndarray, turn_rad: float, radius_m: float,
+                    max_radius_m: float, room_fn: RoomFn, room_m: float, growth: float = 1.25,
+                    step_m: float = 1.0) -> float:
+    """The widest radius (m), from ``radius_m`` up to ``max_radius_m`` in steps of ``growth``, whose arc rounding
+    ``corner`` (map ``north, east, altitude``; the legs' unit directions ``u_in``, ``u_out``) keeps every point
+    ``room_m`` or more from the obstacles (``room_fn``, checked every ``step_m``); ``radius_m`` when none wider does.
+    The search stops at the first radius that fails: a wider arc reaches deeper into the corner.
+
+    >>> room = lambda p, alt: np.hypot(p[:, 0] - 2.0, p[:, 1] - 8.0) - 1.0  # a post of 1 m inside the turn
+    >>> corner, u_in, u_out = np.array([10.0, 0.0, 5.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    >>> round(widest_radius_m(corner, u_in, u_out, math.pi / 2, 1.7, 20.0, room, 4.5), 2)  # north, then east
+    12.67
+    >>> widest_radius_m(corner, u_in, u_out, math.pi / 2, 1.7, 20.0, lambda p, alt: np.full(len(p), 9.0), 4.5)
+    20.0
+    """
+    best = radius_m
+    while best < max_radius_m - 1e-9:
+        radius = min(best * growth, max_radius_m)
+        arc = _arc(corner, u_in, u_out, turn_rad, radius, step_m)
+        if float(np.min(room_fn(arc[:, :2], float(corner[2])))) < room_m:
+            break
+        best = radius
+    return best
 
 
 @dataclass(frozen=True)
@@ -133,7 +176,8 @@ class SmoothPath:
 
 def smooth_path(waypoints: np.ndarray, *, corner_cut_m: float = 0.5, cruise_mps: float = 10.0,
                 accel_mps2: float = 3.0, lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5,
-                arc_step_m: float = 0.5) -> SmoothPath:
+                arc_step_m: float = 0.5, room_fn: RoomFn | None = None, room_m: float = 0.0,
+                max_cut_m: float = math.inf) -> SmoothPath:
     """Round each corner of ``waypoints`` (rows ``[north_m, east_m, altitude_m, ...]``) and schedule the speed.
 
     Each interior waypoint becomes an arc tangent to both legs with the :func:`corner_radius_m` that keeps it within
@@ -141,6 +185,13 @@ def smooth_path(waypoints: np.ndarray, *, corner_cut_m: float = 0.5, cruise_mps:
     ``arc_step_m``. Speeds: ``cruise_mps`` on straights, ``sqrt(lateral_accel_mps2 * r)`` on an arc, at most
     ``vertical_mps`` vertically, braking at ``accel_mps2`` before each slower part and to a stop at the last
     waypoint.
+
+    With ``room_fn`` (what stands around the path), a level corner's arc is widened as far as the obstacles let it
+    (:func:`widest_radius_m`: every point of the arc ``room_m`` or more from them, the tangent points within half
+    of either leg, the arc's middle at most ``max_cut_m`` from them, no wider than cruise speed needs):
+    ``corner_cut_m`` is the bound when nothing is known of what stands around, and a street corner with room to
+    spare was flown at 4-6 m/s where 8-10 m/s keeps the margin. ``max_cut_m`` bounds what ``room_fn`` cannot
+    know: an obstacle nobody has seen yet, standing a margin from the legs, stays that much less from the arc.
 
     >>> p = smooth_path(np.array([[0, 0, 5], [20, 0, 5], [20, 20, 5]]), corner_cut_m=0.5, lateral_accel_mps2=3.0)
     >>> round(float(p.segment_speed_mps.min()), 3), p.speed_at(0.0), round(p.speed_at(p.length_m - 1.5), 3)
@@ -157,24 +208,24 @@ def smooth_path(waypoints: np.ndarray, *, corner_cut_m: float = 0.5, cruise_mps:
         if leg_in > 1e-9 and leg_out > 1e-9:
             u_in, u_out = (b - a) / leg_in, (c - b) / leg_out
             turn = math.acos(max(-1.0, min(1.0, float(u_in @ u_out))))
-        radius = corner_radius_m(turn, corner_cut_m, 0.5 * min(leg_in, leg_out))
+        max_tangent_m = 0.5 * min(leg_in, leg_out)
+        radius = corner_radius_m(turn, corner_cut_m, max_tangent_m)
         if not math.isfinite(radius) or radius < 1e-6:
             out.append(b)
             radii.append(math.inf)
             wp_index.append(len(out) - 1)
             continue
-        tangent_m = radius * math.tan(turn / 2)
-        p1 = b - tangent_m * u_in
-        center = p1 + radius * (u_out - u_in * float(u_in @ u_out)) / math.sin(turn)
-        e1 = (p1 - center) / radius
-        n = max(2, math.ceil(radius * turn / arc_step_m))
-        out.append(p1)
+        if room_fn is not None and abs(a[2] - b[2]) < 1e-6 and abs(c[2] - b[2]) < 1e-6:
+            widest = min(max_tangent_m / math.tan(turn / 2), cruise_mps**2 / lateral_accel_mps2,
+                         max_cut_m / (1.0 - math.cos(turn / 2)))
+            radius = widest_radius_m(b, u_in, u_out, turn, radius, widest, room_fn, room_m)
+        arc = _arc(b, u_in, u_out, turn, radius, arc_step_m)
+        out.append(arc[0])
         radii.append(math.inf)
-        for k in range(1, n + 1):
-            phi = turn * k / n
-            out.append(center + radius * (math.cos(phi) * e1 + math.sin(phi) * u_in))
+        for k in range(1, len(arc)):
+            out.append(arc[k])
             radii.append(radius)
-            if k == n // 2:
+            if k == (len(arc) - 1) // 2:
                 wp_index.append(len(out) - 1)
     if len(pts) > 1:
         out.append(pts[-1])

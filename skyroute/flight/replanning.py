@@ -77,7 +77,9 @@ class ObstacleMap(Protocol):
     # route under a prior on what the map gets wrong (``Replanner.refine_job``), started once the first setpoint of
     # a replanned route is out and run on a worker thread; and ``reroute_job(position_ne, route_ne)``, the same
     # kind of job asked for when ``add_scan``'s answer says it dropped observed obstacles (``cleared``) and the
-    # planning grid changed (``changed``): a way they closed may be open again (``Replanner.reroute_job``).
+    # planning grid changed (``changed``): a way they closed may be open again (``Replanner.reroute_job``); and
+    # ``version``, an int that changes whenever the observed obstacles change the planning grid (the mission rounds
+    # its corners again then: an arc widened round what stood there before may not keep the margin any more).
 
 
 class PositionFix(Protocol):

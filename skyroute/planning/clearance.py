@@ -83,6 +83,23 @@ class Clearance:
             return float(max_m)
         return float(max(s[blocked[0]] - self.step_m, 0.0))
 
+    def distance_m(self, points_ne: np.ndarray, altitude_m: float) -> np.ndarray:
+        """Horizontal distance (m) from each map point ``(north_m, east_m)`` (N, 2) to the nearest building
+        reaching ``altitude_m - safety_m`` (as :meth:`ray_m` counts them), ``(N,)``; ``inf`` where none stands
+        within ``safety_m`` of the points' bounding box plus 50 m.
+
+        >>> c = Clearance(np.array([[30.0, 0.0, 10.0, 5.0, 5.0, 10.0]]), safety_m=5.0)
+        >>> c.distance_m(np.array([[0.0, 0.0], [30.0, 8.0]]), 5.0).tolist(), c.distance_m(np.zeros((1, 2)), 30.0)
+        ([25.0, 3.0], array([inf]))
+        """
+        p = np.asarray(points_ne, float).reshape(-1, 2)
+        if len(p) == 0:
+            return np.empty(0)
+        reach = self.safety_m + 50.0
+        near = ((self.tops + self.safety_m > altitude_m) & np.all(self.lo - reach <= p.max(axis=0), axis=1)
+                & np.all(self.hi + reach >= p.min(axis=0), axis=1))
+        return self._distances(p, altitude_m, self.lo[near], self.hi[near])
+
     def highest_crossed(self, points_ne: np.ndarray, home_ne) -> tuple[float, tuple[float, float]]:
         """The top (m above the map's ground) of the highest box that a straight line from any of the points to
         ``home_ne`` crosses (an autopilot's return flies such a line), and that box's centre; ``(0.0, home)`` when

@@ -236,6 +236,11 @@ class Replanner:
         """Map ``(north_m, east_m)`` of every observed obstacle cell's centre, ``(K, 2)``."""
         return self.live.hit_cells_ne()
 
+    @property
+    def version(self) -> int:
+        """Changes whenever the observed obstacles change the planning grid (:attr:`LiveMap.version`)."""
+        return self.live.version
+
     def clearance_m(self, north_m: float, east_m: float, direction_north: float, direction_east: float,
                     max_m: float) -> float:
         """How far the horizontal ray from the point along the unit direction stays out of every observed

@@ -719,6 +719,28 @@ def test_widened_corners_are_rounded_again_when_an_obstacle_is_observed_beside_t
         assert clearance < 2.5  # 1.6 m
 
 
+def test_rounding_again_far_along_a_long_leg_keeps_the_vehicle_going_forward(clock):
+    """Rounded again 70 m along a 100 m leg (beyond the 30 m that progress is usually searched within), the
+    vehicle carries on from where it is: it never turns back."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0))  # = map (0, 0)
+    observed, seen_at = _Observed(), []
+
+    def plan(n, e):
+        return np.array([[n, e, 10.0, 0.0], [n + 100.0, e, 10.0, 0.0], [n + 100.0, e + 40.0, 10.0, 0.0]])
+
+    def observe(dt):
+        if not seen_at and v.telemetry.north_m + OFFSET.north_m > 70.0:
+            seen_at.append(clock.now)
+            observed.version += 1
+
+    clock.tickers.append(observe)
+    room = lambda p, alt: np.full(len(p), np.inf)  # noqa: E731
+    result = make_mission(v, clock, plan, room_fn=room, obstacles=observed).run()
+    assert result.completed and seen_at
+    north = result.track[result.track[:, 0] >= seen_at[0], 1]
+    assert np.all(np.diff(north) >= -0.05)
+
+
 # ------------------------------------------------------------------------------------------- the flow
 def test_full_mission(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))  # = map (0, 0): OFFSET is (100, -50)

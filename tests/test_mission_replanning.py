@@ -296,6 +296,33 @@ def test_a_replanned_route_is_refined_once_and_the_refined_route_is_flown():
     assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
 
 
+@pytest.mark.parametrize("where, taken", [((-20.0, 0.5), True),  # a few metres along its first leg
+                                           ((10.0, 0.5), False),  # past its first turn (a slow search)
+                                           ((-80.0, 40.0), False)])  # the leg back to its start cuts a block
+def test_a_refined_route_is_taken_only_from_where_its_first_leg_is_clear_and_ahead(where, taken):
+    """A refinement searched from (-25.5, 0.5), up the middle street to (-0.5, 0.5) then west, finishes with the
+    vehicle somewhere else: it becomes the route only while its first turn is ahead and the leg there is clear."""
+    from concurrent.futures import Future
+
+    clock = FakeClock()
+    v = SensingVehicle(clock, STALE, start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    mission = _mission(v, clock, Replanner(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT),
+                       [])
+    route = SimpleNamespace(waypoints=np.array([[-25.5, 0.5, ALT, 0.0], [-0.5, 0.5, ALT, 0.0],
+                                                [-0.5, -85.0, ALT, 0.0], [85.0, -85.0, ALT, 0.0]]),
+                            plan_ms=5.0, length_m=300.0)
+    done = Future()
+    done.set_result(route)
+    mission._refining = done
+    if taken:
+        with pytest.raises(m._Rerouted) as rerouted:
+            mission._take_refined(SimpleNamespace(north_m=where[0], east_m=where[1], altitude_m=ALT))
+        assert rerouted.value.waypoints[:2, :2].tolist() == [list(where), [-0.5, 0.5]]
+    else:
+        mission._take_refined(SimpleNamespace(north_m=where[0], east_m=where[1], altitude_m=ALT))  # not taken
+
+
 def test_a_refinement_overtaken_by_the_next_replan_never_runs():
     """A wall seen a piece at a time is replanned at the sensor rate, faster than a refinement runs: only the one
     running and the one for the route flown now may run, not a queue of refinements of routes given up."""

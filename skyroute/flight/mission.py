@@ -748,13 +748,15 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
     def _rounded_again(self, path: SmoothPath, waypoints: np.ndarray, i: int) -> SmoothPath:
         """``path``, or the corners rounded again when the observed obstacles changed since it was rounded (an arc
         widened round what stood there before may not keep the margin any more); progress carried over onto the
-        new one, from the middle of waypoint ``i - 1``'s corner (the last passed)."""
+        new one: the point nearest the vehicle between waypoint ``i - 1``'s corner (the last passed) and
+        waypoint ``i``'s."""
         if self.room_fn is None or self._obstacles_version() == self._rounded_version:
             return path
         path = self._rounded(waypoints)
         p = self._map_position()
         since = float(path.waypoint_s_m[i - 1]) if i > 0 else 0.0
-        self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), since)
+        stretch = float(path.waypoint_s_m[i]) - since + 1.0
+        self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), since, window_m=stretch)
         return path
 
     def _follow(self, waypoints: np.ndarray) -> None:

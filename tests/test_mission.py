@@ -284,6 +284,30 @@ def test_max_cut_bounds_how_far_a_widened_arc_leaves_its_legs():
     assert p.segment_speed_mps.min() == pytest.approx(math.sqrt(3.0 * radius), rel=1e-6)
 
 
+#: Two 45 degree turns 4.95 m apart (grid pruning leaves such pairs where a route rounds a building's corner).
+PAIR = np.array([[0.0, 0.0, 5.0], [50.0, 0.0, 5.0], [53.5, 3.5, 5.0], [53.5, 50.0, 5.0]])
+
+
+def test_a_close_pair_of_turns_the_same_way_is_flown_as_one_wider_corner():
+    open_air = lambda p, alt: np.full(len(p), np.inf)  # noqa: E731
+    p = fp.smooth_path(PAIR, cruise_mps=10.0, lateral_accel_mps2=3.0, room_fn=open_air, room_m=5.0, max_cut_m=2.5)
+    apart = math.sqrt(3.0 * 0.5 * math.dist(PAIR[1], PAIR[2]) / math.tan(math.radians(22.5)))  # 4.2 m/s each
+    assert p.segment_speed_mps.min() > 1.3 * apart  # 5.7 m/s: 2.5 m off the pair's legs
+    assert max(_distance_to_polyline(q, PAIR) for q in p.points) <= 2.5 + 1e-9  # max_cut from the pair's own legs
+    assert len(p.waypoint_s_m) == 4 and p.waypoint_s_m[1] == p.waypoint_s_m[2]  # both passed at the one corner
+    assert p.points[0].tolist() == PAIR[0].tolist() and p.points[-1].tolist() == PAIR[-1].tolist()
+
+
+def test_a_pair_is_not_merged_across_a_jog_or_where_no_merged_arc_keeps_the_margin():
+    jog = PAIR * [1.0, 1.0, 1.0]
+    jog[3] = [100.0, 3.5, 5.0]  # the second turn goes back the other way: a jog, two corners
+    open_air = lambda p, alt: np.full(len(p), np.inf)  # noqa: E731
+    assert len(fp._merge_close_pairs(jog[:, :3], open_air, 5.0, math.inf)) == 4
+    cramped = lambda p, alt: np.full(len(p), 4.9)  # noqa: E731  (no arc keeps the margin)
+    assert len(fp._merge_close_pairs(PAIR, cramped, 5.0, math.inf)) == 4
+    assert len(fp._merge_close_pairs(PAIR, open_air, 5.0, math.inf)) == 3
+
+
 def test_a_climbing_corner_is_not_widened():
     climb = np.array([[0.0, 0.0, 5.0], [20.0, 0.0, 5.0], [20.0, 20.0, 15.0]])
     open_air = lambda p, alt: np.full(len(p), np.inf)  # noqa: E731

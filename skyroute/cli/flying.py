@@ -141,13 +141,17 @@ def fly(
             return reach
         return min(reach, obstacles.clearance_m(north_m, east_m, direction_north, direction_east, reach))
 
+    observed: dict = {}  # the observed obstacles' boxes, made once per version of the layer (1.5 ms each on SF)
+
     def room(points_ne: np.ndarray, altitude_m: float) -> np.ndarray:
         """How far each point stands from the map's buildings, and from the observed obstacles when sensing."""
         distance = geometry.distance_m(points_ne, altitude_m)
         if obstacles is None or not obstacles.live.hits.any():
             return distance
-        seen = Clearance(obstacles.live.hit_boxes(altitude_m), setting.safety_m)
-        return np.minimum(distance, seen.distance_m(points_ne, altitude_m))
+        key = (obstacles.version, altitude_m)
+        if observed.get("key") != key:
+            observed.update(key=key, boxes=Clearance(obstacles.live.hit_boxes(altitude_m), setting.safety_m))
+        return np.minimum(distance, observed["boxes"].distance_m(points_ne, altitude_m))
 
     try:
         view = open_view(view_port, setting, goal_ne, out)

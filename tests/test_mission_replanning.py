@@ -297,11 +297,13 @@ def test_a_replanned_route_is_refined_once_and_the_refined_route_is_flown():
 
 
 @pytest.mark.parametrize("where, taken", [((-20.0, 0.5), True),  # a few metres along its first leg
-                                           ((10.0, 0.5), False),  # past its first turn (a slow search)
+                                           ((1.5, 0.5), True),  # just past its first turn (2 m: under a margin)
+                                           ((10.0, 0.5), False),  # well past its first turn (a slow search)
                                            ((-80.0, 40.0), False)])  # the leg back to its start cuts a block
 def test_a_refined_route_is_taken_only_from_where_its_first_leg_is_clear_and_ahead(where, taken):
     """A refinement searched from (-25.5, 0.5), up the middle street to (-0.5, 0.5) then west, finishes with the
-    vehicle somewhere else: it becomes the route only while its first turn is ahead and the leg there is clear."""
+    vehicle somewhere else: it becomes the route only while its first turn is ahead (or passed by less than a
+    margin) and the leg there is clear."""
     from concurrent.futures import Future
 
     clock = FakeClock()

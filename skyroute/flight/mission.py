@@ -214,7 +214,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.vehicle_errors = tuple(vehicle_errors)
         self.goal_ne = None if goal_ne is None else (float(goal_ne[0]), float(goal_ne[1]))
         self.surface_fn, self.ground_amsl_m, self.clearance_fn = surface_fn, ground_amsl_m, clearance_fn
-        self.room_fn, self._rounded_version = room_fn, 0
+        self.room_fn = room_fn
         self.return_line_fn = return_line_fn
         self.progress = progress or (lambda line: None)
         self.progress_every_s = progress_every_s
@@ -734,7 +734,6 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         """The path the mission flies through ``waypoints`` (map frame): rounded and speed-scheduled at its speeds,
         its corners widened within ``room_fn`` (half a margin off the legs at most while sensing)."""
         s = self.speeds
-        self._rounded_version = self._obstacles_version()
         return smooth_path(waypoints, corner_cut_m=self.corner_cut_m, cruise_mps=s.cruise_mps,
                            accel_mps2=s.accel_mps2, lateral_accel_mps2=s.lateral_accel_mps2,
                            vertical_mps=s.vertical_mps, room_fn=self.room_fn,
@@ -745,15 +744,11 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         """The observed obstacles' version (``ObstacleMap.version``; 0 without one)."""
         return int(getattr(self.sensing.obstacles, "version", 0))
 
-    def _rounded_again(self, path: SmoothPath, waypoints: np.ndarray, i: int) -> SmoothPath:
-        """``path``, or the corners rounded again when the observed obstacles changed since it was rounded (an arc
-        widened round what stood there before may not keep the margin any more); progress carried over onto the
-        new one: the point nearest the vehicle between waypoint ``i - 1``'s corner (the last passed) and
-        waypoint ``i``'s."""
-        if self.room_fn is None or self._obstacles_version() == self._rounded_version:
-            return path
+    def _rounded_again(self, waypoints: np.ndarray, i: int, p) -> SmoothPath:
+        """The corners rounded again, for the observed obstacles changed (an arc widened round what stood there
+        before may not keep the margin any more), and the vehicle at ``p`` carried over onto the new path: the
+        point nearest it between waypoint ``i - 1``'s corner (the last passed) and waypoint ``i``'s."""
         path = self._rounded(waypoints)
-        p = self._map_position()
         since = float(path.waypoint_s_m[i - 1]) if i > 0 else 0.0
         stretch = float(path.waypoint_s_m[i]) - since + 1.0
         self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), since, window_m=stretch)
@@ -762,7 +757,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
     def _follow(self, waypoints: np.ndarray) -> None:
         """Fly the rounded path through ``waypoints`` (see :func:`~.follower.steer`) and stop at the last one."""
         s = self.speeds
-        path = self._rounded(waypoints)
+        path, rounded_at = self._rounded(waypoints), self._obstacles_version()
         last = len(waypoints) - 1
         ref_s, heading = self._progress_s, float(waypoints[0, 3])
         i = int(np.searchsorted(path.waypoint_s_m, self._progress_s, side="right"))
@@ -789,9 +784,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             self._sense(p, waypoints, i)
             self._reroute_if_reopened(p, waypoints, i)
             self._take_refined(p)
-            rounded = self._rounded_again(path, waypoints, i)
-            if rounded is not path:
-                path, ref_s = rounded, self._progress_s
+            if self.room_fn is not None and self._obstacles_version() != rounded_at:
+                path, rounded_at = self._rounded_again(waypoints, i, p), self._obstacles_version()
+                ref_s = self._progress_s
             if self.clock() - sent_at < 0.9 * self.poll_s:  # woken early by a reading: checked, nothing to send
                 self._tick(wake_on_sensor=True)
                 continue

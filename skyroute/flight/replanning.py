@@ -371,12 +371,6 @@ class Sensing:
         return np.asarray(self.obstacles.discovered_ne(), float).reshape(-1, 2)
 
 
-def _first_turn(waypoints: np.ndarray) -> np.ndarray:
-    """The second of ``waypoints`` (map, rows ``north, east, ...``; no two in a row at one place), or the only."""
-    points = np.asarray(waypoints, float)[:, :2]
-    return points[min(1, len(points) - 1)]
-
-
 def _along(here_ne: Sequence[float], start_ne: Sequence[float], turn_ne: Sequence[float]) -> float:
     """How far (m) the point ``here_ne`` lies along the leg from ``start_ne`` towards ``turn_ne`` (map north, east;
     negative: behind its start).
@@ -828,15 +822,17 @@ class ReplanningMixin:
             log.info("replan: the refined route is blocked by what was seen since; flying the replanned route")
             return
         waypoints = waypoints[np.r_[True, np.hypot(*np.diff(waypoints[:, :2], axis=0).T) > 1e-6]]
-        turn = _first_turn(waypoints)
+        turn = waypoints[min(1, len(waypoints) - 1), :2]
         along = _along(here, waypoints[0, :2], turn)
         if along < 0.0:  # not at the route's start yet (on the lead-in): fly there first
             waypoints, turn = np.vstack([waypoints[:1], waypoints]), waypoints[0, :2]
-        if along > math.dist(waypoints[0, :2], turn) or not self.sensing.obstacles.segment_free(here, turn):
-            # a slow search (a loaded CPU: 1.2 s, 12 m along): its first turn was behind the vehicle, and the leg
-            # back there from here, which no search had checked, cut a building's margin (2.2 m from it)
-            log.info("replan: the vehicle is past the refined route's first turn (or the leg there from here is not "
-                     "clear); flying the replanned route")
+        past_m = along - math.dist(waypoints[0, :2], turn)
+        if past_m > self.replan_margin_m or not self.sensing.obstacles.segment_free(here, turn):
+            # a slow search (a loaded CPU: 1.2 s, 12 m along): its first turn was 25 m behind the vehicle, and the leg
+            # back there from here, which no search had checked, cut a building's margin (2.2 m from it). A turn
+            # just passed (a vehicle slow in a tight spot reaches it while the search runs) is still taken.
+            log.info("replan: the vehicle is %.0f m past the refined route's first turn (or the leg there from here "
+                     "is not clear); flying the replanned route", past_m)
             return
         waypoints = self._flight_waypoints(waypoints, p)
         records = self.sensing.records

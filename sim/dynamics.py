@@ -58,6 +58,9 @@ class ControlTarget:
     max_horizontal_speed_m_s: float = math.nan
     #: Vertical speed limit override while descending (m/s, positive), e.g. landing speed.
     max_descent_m_s: float = math.nan
+    #: Feed-forward acceleration (m/s^2, map frame; NaN axes none), added to the velocity loop's output as PX4
+    #: OFFBOARD does; the loop's integrator then learns only what it leaves of the drag.
+    accel_neu: tuple[float, float, float] = NAN3
 
 
 @dataclass
@@ -67,6 +70,8 @@ class QuadState:
     position_neu: np.ndarray = field(default_factory=lambda: np.zeros(3))
     velocity_neu: np.ndarray = field(default_factory=lambda: np.zeros(3))
     accel_neu: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: What the thrust gives (m/s^2): the acceleration less the drag; the attitude leans along it.
+    thrust_neu: np.ndarray = field(default_factory=lambda: np.zeros(3))
     yaw_rad: float = 0.0
     yaw_rate_rad_s: float = 0.0
     on_ground: bool = True
@@ -187,6 +192,7 @@ class PointMassQuad:
         if not armed:
             s.velocity_neu[:] = 0.0
             s.accel_neu[:] = 0.0
+            s.thrust_neu[:] = 0.0
             s.yaw_rate_rad_s = 0.0
             self._lean_m_s2[:] = 0.0
             return False
@@ -203,18 +209,22 @@ class PointMassQuad:
         if ah > lim.max_horizontal_accel_m_s2:
             accel[:2] *= lim.max_horizontal_accel_m_s2 / ah
         accel[2] = min(max(accel[2], -lim.max_vertical_accel_m_s2), lim.max_vertical_accel_m_s2)
-        if wind_neu is not None:
+        feedforward = np.nan_to_num(np.array(target.accel_neu[:2], dtype=float), nan=0.0)
+        thrust = accel.copy()
+        if wind_neu is not None or feedforward.any():
             # The velocity loop's integrator learns the drag (a first-order lag) and leans against it, on top of
-            # the shaped acceleration, within what the tilt allows: a steady wind leaves no steady offset, a gust
-            # pushes the vehicle until it is learnt, and a wind beyond the tilt's reach carries it off.
-            drag = lim.drag_1_s * (wind_neu[:2] - s.velocity_neu[:2])
-            self._lean_m_s2 += (drag - self._lean_m_s2) * min(1.0, dt_s / max(lim.wind_integrator_s, 1e-9))
-            thrust = accel[:2] - self._lean_m_s2
+            # the shaped acceleration and the feed-forward, within what the tilt allows: a steady wind leaves no
+            # steady offset, a gust pushes the vehicle until it is learnt, a wind beyond the tilt's reach carries
+            # it off. A feed-forward that carries the drag leaves the integrator nothing to learn.
+            drag = np.zeros(2) if wind_neu is None else lim.drag_1_s * (wind_neu[:2] - s.velocity_neu[:2])
+            self._lean_m_s2 += (drag + feedforward - self._lean_m_s2) * min(
+                1.0, dt_s / max(lim.wind_integrator_s, 1e-9))
+            thrust[:2] = accel[:2] + feedforward - self._lean_m_s2
             th = float(np.hypot(thrust[0], thrust[1]))
             if th > lim.max_tilt_accel_m_s2:
-                thrust *= lim.max_tilt_accel_m_s2 / th
-            accel[:2] = thrust + drag
-        s.accel_neu = accel
+                thrust[:2] *= lim.max_tilt_accel_m_s2 / th
+            accel[:2] = thrust[:2] + drag
+        s.accel_neu, s.thrust_neu = accel, thrust
         s.velocity_neu = s.velocity_neu + accel * dt_s
         s.position_neu = s.position_neu + s.velocity_neu * dt_s
         # Yaw.
@@ -241,12 +251,12 @@ class PointMassQuad:
         return False
 
     def attitude(self) -> tuple[float, float, float]:
-        """Roll, pitch, yaw (rad) a multicopter would hold to produce the current acceleration."""
+        """Roll, pitch, yaw (rad) a multicopter would hold for its thrust's acceleration (it leans into a wind)."""
         s = self.state
         c, sn = math.cos(s.yaw_rad), math.sin(s.yaw_rad)
-        a_fwd = c * s.accel_neu[0] + sn * s.accel_neu[1]
-        a_right = -sn * s.accel_neu[0] + c * s.accel_neu[1]
-        g = GRAVITY_M_S2 + s.accel_neu[2]
+        a_fwd = c * s.thrust_neu[0] + sn * s.thrust_neu[1]
+        a_right = -sn * s.thrust_neu[0] + c * s.thrust_neu[1]
+        g = GRAVITY_M_S2 + s.thrust_neu[2]
         pitch = -math.atan2(a_fwd, g)
         roll = math.atan2(a_right, g)
         return roll, pitch, s.yaw_rad

@@ -3,7 +3,8 @@
 ``type_mask`` ignore bits are honoured per axis: a position axis whose bit is clear is
 position-controlled (its velocity, if not ignored, is feed-forward); an axis with only velocity is
 velocity-controlled; an axis with neither holds the position it had when the setpoint arrived.
-Accelerations are not simulated and are ignored.
+An acceleration (its bits clear, not a force) is a feed-forward added to the velocity loop's output, as PX4
+OFFBOARD takes it; the ArduPilot personality ignores it (ArduCopter's GUIDED integrates it into a moving target).
 
 Classic dialect (udacidrone ``PX4=False``, outside ``--strict`` only): ``(type_mask & 0x3000)``
 ``0x1000`` = takeoff, ``0x2000`` = land at (x, y), ``0x3000`` = loiter; and ``z`` is a positive
@@ -36,11 +37,13 @@ def _warn_once(ap, link, key: str, text: str) -> None:
         ap.emit("setpoint", f"link {link.link_id}: {text}")
 
 
-def _build(ap, mask: int, pos_neu, vel_neu, yaw: float, yaw_rate: float) -> ControlTarget:
-    """Apply the ignore bits; unset axes hold the current position."""
+def _build(ap, mask: int, pos_neu, vel_neu, yaw: float, yaw_rate: float, accel_neu=(NAN, NAN, NAN)) -> ControlTarget:
+    """Apply the ignore bits; unset axes hold the current position. An acceleration goes with a position or a
+    velocity as a feed-forward (PX4 only: ArduCopter's GUIDED integrates it into its target, not simulated)."""
     here = ap.position_neu
     pos = [NAN, NAN, NAN]
     vel = [NAN, NAN, NAN]
+    acc = [NAN, NAN, NAN]
     for axis in range(3):
         pos_used = not mask & (1 << axis)
         vel_used = not mask & (8 << axis)
@@ -50,9 +53,11 @@ def _build(ap, mask: int, pos_neu, vel_neu, yaw: float, yaw_rate: float) -> Cont
             vel[axis] = float(vel_neu[axis])
         if not pos_used and not vel_used:
             pos[axis] = float(here[axis])
+        elif ap.is_px4 and not mask & (64 << axis) and not mask & M.POSITION_TARGET_TYPEMASK_FORCE_SET:
+            acc[axis] = float(accel_neu[axis])
     yaw_v = yaw if not mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE else NAN
     rate_v = yaw_rate if not mask & M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE else NAN
-    return ControlTarget(tuple(pos), tuple(vel), yaw_v, rate_v)
+    return ControlTarget(tuple(pos), tuple(vel), yaw_v, rate_v, accel_neu=tuple(acc))
 
 
 def local_ned_target(ap, link, msg) -> ControlTarget | None:
@@ -93,7 +98,11 @@ def local_ned_target(ap, link, msg) -> ControlTarget | None:
         return ControlTarget((pos[0], pos[1], NAN), (NAN, NAN, -land), max_descent_m_s=land)
     if special in (0x1000, 0x3000):  # classic takeoff / loiter: go to and hold the position
         return ControlTarget(tuple(float(v) for v in pos))
-    return _build(ap, mask, pos, vel, yaw, float(msg.yaw_rate))
+    acc = (float(msg.afx), float(msg.afy), -float(msg.afz))
+    if frame in _BODY_FRAMES:
+        c, s = math.cos(ap.quad.state.yaw_rad), math.sin(ap.quad.state.yaw_rad)
+        acc = (c * acc[0] - s * acc[1], s * acc[0] + c * acc[1], acc[2])
+    return _build(ap, mask, pos, vel, yaw, float(msg.yaw_rate), acc)
 
 
 def global_int_target(ap, link, msg) -> ControlTarget | None:
@@ -114,7 +123,8 @@ def global_int_target(ap, link, msg) -> ControlTarget | None:
     if mask & 0b011:  # lat/lon are one pair: ignoring either ignores both
         mask |= 0b011
     vel = (float(msg.vx), float(msg.vy), -float(msg.vz))
-    return _build(ap, mask, (n, e, up), vel, float(msg.yaw), float(msg.yaw_rate))
+    acc = (float(msg.afx), float(msg.afy), -float(msg.afz))
+    return _build(ap, mask, (n, e, up), vel, float(msg.yaw), float(msg.yaw_rate), acc)
 
 
 CLASSIC_BITS = 0x3000

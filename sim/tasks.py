@@ -48,7 +48,7 @@ class TaskControl:
                 sp = self.setpoint if self.is_px4 else self._guided_target()
                 if math.isfinite(speed):
                     sp = ControlTarget(sp.position_neu, sp.velocity_neu, sp.yaw_rad, sp.yaw_rate_rad_s, speed,
-                                       sp.max_descent_m_s)
+                                       sp.max_descent_m_s, sp.accel_neu)
                 return sp
             return ControlTarget(tuple(task.position_neu), max_horizontal_speed_m_s=speed)
         if task.kind in (Behaviour.HOLD, Behaviour.TAKEOFF):

@@ -119,6 +119,41 @@ def _fly_in_wind(lim: Limits, target: ControlTarget, wind, seconds: float) -> Po
     return quad
 
 
+def test_a_vehicle_holding_station_in_a_wind_leans_into_it():
+    hover = _fly_in_wind(Limits(), ControlTarget((0.0, 0.0, 10.0)), (0.0, 8.0, 0.0), 20.0)
+    roll, pitch, _ = hover.attitude()  # nose north, wind from the west blowing east: lean west (left wing down)
+    assert math.tan(roll) * 9.80665 == pytest.approx(-0.3 * 8.0, abs=0.05) and abs(pitch) < 0.01
+
+
+def _turn_drift_m(feedforward_1_s: float, drag: bool = True) -> float:
+    """Fly north at 8 m/s in still air (drag 0.3/s; none without ``drag``), then turn east: how far north of the
+    turn point the vehicle swings, with ``feedforward_1_s`` x the target velocity as a feed-forward acceleration."""
+    lim = Limits()
+    quad = PointMassQuad(lim, [0.0, 0.0, 10.0])
+    quad.state.on_ground = False
+    ground = lambda n, e, u: 0.0  # noqa: E731
+    still = np.zeros(3) if drag else None
+    north = (8.0 * feedforward_1_s, 0.0, math.nan)
+    for k in range(1000):  # 10 s north: the integrator (or the feed-forward) carries the drag
+        at = 8.0 * (k + 1) * 0.01
+        quad.step(0.01, ControlTarget((at, 0.0, 10.0), (8.0, 0.0, math.nan), accel_neu=north), True, ground, still)
+    turn_n, turn_e = quad.state.position_neu[:2]
+    east = (0.0, 8.0 * feedforward_1_s, math.nan)
+    worst = 0.0
+    for k in range(800):
+        target = ControlTarget((turn_n, turn_e + 8.0 * (k + 1) * 0.01, 10.0), (0.0, 8.0, math.nan), accel_neu=east)
+        quad.step(0.01, target, True, ground, still)
+        worst = max(worst, quad.state.position_neu[0] - turn_n)
+    return worst
+
+
+def test_a_feedforward_that_carries_the_drag_leaves_the_integrator_nothing_to_swing_round_at_a_turn():
+    # the swing of braking from 8 m/s at 4 m/s^2, flown without drag (10.4 m), is the yardstick: the integrator
+    # still leaning north adds 1.7 m to it; with the drag carried the drag only helps the braking (8.4 m)
+    floor, without, carried = _turn_drift_m(0.0, drag=False), _turn_drift_m(0.0), _turn_drift_m(0.3)
+    assert without > floor + 1.0 and carried < floor
+
+
 def test_the_controller_leans_into_a_wind_its_trajectory_limit_could_not_hold():
     # ArduCopter's WPNAV_ACCEL 2.5 m/s^2 against the drag of an 8 m/s crosswind (0.3/s * 8 = 2.4 m/s^2) plus a
     # 10 m/s leg into a 6 m/s headwind (0.3/s * 16 = 4.8 m/s^2): the integrator learns the drag, the tilt holds it

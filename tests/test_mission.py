@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from skyroute.flight import drag as dg
 from skyroute.flight import follower as fw
 from skyroute.flight import mission as m
 from skyroute.flight import path as fp
@@ -539,6 +540,7 @@ class FakeVehicle:
         self.calls: list[str] = []
         self.gotos: list[tuple[float, float, float, float]] = []
         self.velocities: list[tuple[float, float, float] | None] = []
+        self.accelerations: list[tuple[float, float, float] | None] = []
         self.feedforward = None
         self.grounds: list[float] = []
         self.fail_on = {}  # method name -> exception to raise (once, or always if the key ends in "!")
@@ -619,10 +621,11 @@ class FakeVehicle:
         self.mode, self.setpoint, self.feedforward = "offboard", (t.north_m, t.east_m, t.down_m - altitude_m), None
         return LocalNED(*self.setpoint)
 
-    def goto_local(self, north_m, east_m, down_m, yaw_rad, velocity_ned=None):
+    def goto_local(self, north_m, east_m, down_m, yaw_rad, velocity_ned=None, accel_ned=None):
         self._maybe_fail("goto_local")
         self.gotos.append((north_m, east_m, down_m, yaw_rad))
         self.velocities.append(velocity_ned)
+        self.accelerations.append(accel_ned)
         self.setpoint = (north_m, east_m, down_m)
         self.feedforward = velocity_ned
 
@@ -893,6 +896,39 @@ def test_speeds_are_fitted_to_the_autopilots_limits_and_a_hovering_failsafe_is_w
     assert "warning: a lost link leaves the vehicle hovering" in lines
     speeds = [math.hypot(vn, ve) for vn, ve, _ in (x for x in v.velocities if x is not None)]
     assert max(speeds) <= 4.0 + 1e-9
+
+
+class _LeansIntoDrag(FakeVehicle):
+    """Reports the attitude a multicopter with a drag of 1/s holds at its velocity (leaning ``v`` m/s^2 into it)."""
+
+    def _step(self, dt):
+        t = self.telemetry
+        before = np.array([t.local_v_north_mps, t.local_v_east_mps])
+        super()._step(dt)
+        v = np.array([t.local_v_north_mps, t.local_v_east_mps])
+        an, ae = v + (v - before) / dt  # the drag's lean, and what changes the velocity
+        t.heading_rad = 0.0  # nose north: pitch leans north, roll east
+        t.pitch_rad = -math.atan(an / dg.GRAVITY_MPS2)
+        t.roll_rad = math.atan(ae / dg.GRAVITY_MPS2 * math.cos(t.pitch_rad))
+
+
+@pytest.mark.parametrize("takes_it", [True, False], ids=["px4", "ardupilot"])
+def test_the_drag_learnt_from_the_attitude_is_sent_as_an_acceleration_only_where_the_autopilot_adds_it(
+        clock, takes_it):
+    v = _LeansIntoDrag(clock, start=(-100.0, 50.0), speed_mps=8.0)
+    v.limits.acceleration_feedforward = takes_it
+    mission = make_mission(v, clock, straight_plan([]), cruise_mps=8.0)  # 60 m north, then 40 m east
+    assert mission.run().completed
+    sent = [(np.array(vel), np.array(acc)) for vel, acc in zip(v.velocities, v.accelerations) if acc is not None]
+    if not takes_it:
+        assert not sent and any(vel is not None for vel in v.velocities)
+        return
+    assert mission.drag.k_1_s == pytest.approx(1.0, abs=0.25)  # a fake's jerky velocity: test_drag checks the fit
+    assert len(sent) > 20  # from 3 s of level flight at speed on, every setpoint with a velocity carries one
+    for vel, acc in sent:  # local NED: the lean along the velocity, k times it, nothing vertical
+        assert acc[:2] == pytest.approx(vel[:2] * (acc[:2] @ vel[:2]) / (vel[:2] @ vel[:2]), abs=1e-9)
+        assert acc[2] == 0.0
+        assert 0.5 < np.linalg.norm(acc[:2]) / np.linalg.norm(vel[:2]) < 1.5
 
 
 def test_arm_refused_then_accepted(clock):

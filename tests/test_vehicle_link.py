@@ -586,6 +586,31 @@ def test_velocity_feed_forward_is_sent_then_dropped_when_not_renewed(fake, conne
     assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (10.0, -5.0, -20.0, 0.0, 0.0, 0.0)
 
 
+def test_acceleration_feed_forward_goes_with_the_velocity_and_is_dropped_with_it(fake, connect):
+    ap = fake()
+    v = connect(ap.port, feedforward_timeout_s=0.3)
+    v.wait_for(lambda t: t.has_local, 2.0, "local position")
+    v.prepare_flight()
+    v.goto_local(12.0, -5.0, -20.0, yaw_rad=1.0, velocity_ned=(3.0, 4.0, 0.0), accel_ned=(2.5, 3.25, 0.0))
+
+    def new_target():
+        return [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == 12.0]
+
+    assert wait_until(lambda: new_target(), 5.0)
+    sp = new_target()[0]
+    first_ms = sp.time_boot_ms
+    assert sp.type_mask == vh.TYPE_MASK_POSITION_VELOCITY_ACCEL_YAW == mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+    assert (sp.vx, sp.vy, sp.vz, sp.afx, sp.afy, sp.afz) == (3.0, 4.0, 0.0, 2.5, 3.25, 0.0)  # float32-exact
+    assert wait_until(lambda: new_target()[-1].time_boot_ms > first_ms + 350, 5.0)
+    sp = new_target()[-1]  # stale: position only, no velocity and no acceleration to carry the vehicle on
+    assert sp.type_mask == vh.TYPE_MASK_POSITION_YAW
+    assert (sp.vx, sp.vy, sp.afx, sp.afy) == (0.0, 0.0, 0.0, 0.0)
+    v.goto_local(13.0, -5.0, -20.0, yaw_rad=1.0, accel_ned=(2.4, 3.2, 0.0))  # no velocity: no acceleration either
+    assert wait_until(lambda: [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == 13.0], 5.0)
+    sp = [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == 13.0][0]
+    assert sp.type_mask == vh.TYPE_MASK_POSITION_YAW and (sp.afx, sp.afy) == (0.0, 0.0)
+
+
 def test_local_position_is_requested_at_the_steering_rate(fake, connect):
     ap = fake()
     connect(ap.port, telemetry_rate_hz=10.0, local_position_rate_hz=50.0)

@@ -34,12 +34,14 @@ FINAL_APPROACH_M = 1.0
 @dataclass(frozen=True)
 class Setpoint:
     """What to command: ``position`` (3,) map ``[north_m, east_m, altitude_m]``, ``velocity`` (3,) map
-    ``[north, east, up]`` m/s or None (position only), ``heading_rad``, and ``ref_s`` (its arc length)."""
+    ``[north, east, up]`` m/s or None (position only), ``heading_rad``, ``ref_s`` (its arc length), and
+    ``acceleration`` (3,) map m/s^2, the drag's feed-forward, or None (none to send)."""
 
     position: np.ndarray
     velocity: np.ndarray | None
     heading_rad: float
     ref_s: float
+    acceleration: np.ndarray | None = None
 
 
 def feedforward_cap_mps(limits: Limits | None, clearance_fn: ClearanceFn | None, position, tangent,
@@ -71,7 +73,7 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
           accel_mps2: float, velocity_lag_s: float, heading_rad: float, limits: Limits | None = None,
           clearance_fn: ClearanceFn | None = None, previous_mps: float = 0.0, dt_s: float = 0.0,
           max_lead_mps: float = 2.0, brake_lag_s: float = 0.0, speed_cap_mps: float = math.inf,
-          delay_s: float = 0.0) -> Setpoint:
+          delay_s: float = 0.0, drag_1_s: float = 0.0) -> Setpoint:
     """The setpoint for a vehicle at ``position`` (map n, e, alt) moving at ``velocity`` (map n, e, up) that has
     reached arc length ``s_m``; ``ref_s_m`` is the previous setpoint's (setpoints never go back along the path).
 
@@ -91,6 +93,10 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
     The feed-forward's direction is the path's ``velocity_lag_s`` ahead (the autopilot's velocity loop takes
     about that long to turn); its speed is the schedule's ``max(velocity_lag_s, brake_lag_s)`` ahead, so an
     autopilot that is slow to slow down (PX4, ~0.6 s) is told to brake that much earlier without turning early.
+
+    ``drag_1_s`` > 0 (the vehicle's drag, :class:`~.drag.DragEstimate`) adds ``drag_1_s`` times the feed-forward
+    velocity as a feed-forward acceleration: the lean that holds that speed against the drag, so the autopilot's
+    integrator need not learn it on each leg (horizontal only; none with a plain position).
     """
     speed = float(np.linalg.norm(velocity))
     capped = speed_cap_mps < path.speed_at(s_m)  # the cap, not the schedule, sets the speed here
@@ -116,4 +122,8 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
     wanted = min(path.speed_at(ff_s), path.speed_at(brake_s), ramp,
                  speed + accel_mps2 * max(ahead_s, 0.1) + max_lead_mps, cap)
     wanted = feedforward_cap_mps(limits, clearance_fn, target, tangent, wanted)
-    return Setpoint(target, tangent * wanted, heading_rad, ref_s)
+    velocity_ff = tangent * wanted
+    lean = None
+    if drag_1_s > 0:
+        lean = np.array([drag_1_s * velocity_ff[0], drag_1_s * velocity_ff[1], 0.0])
+    return Setpoint(target, velocity_ff, heading_rad, ref_s, lean)

@@ -38,6 +38,7 @@ import numpy as np
 from skyroute.frames import Geodetic, LocalNED
 
 from . import follower, preflight
+from .drag import DragEstimate
 from .errors import (
     ArmingFailed,
     ControlTakenOver,
@@ -232,6 +233,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.altitude_tolerance_m, self.corner_cut_m = altitude_tolerance_m, corner_cut_m
         self.speeds = preflight.Speeds(cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps)
         self.lead_s, self.velocity_lag_s, self.brake_lag_s = lead_s, velocity_lag_s, 0.0
+        self.drag, self._drag_at, self._drag_told = DragEstimate(), math.nan, False
         self.poll_s, self.track_interval_s = poll_s, track_interval_s
         self.clock, self.sleep = clock, sleep
         self.sensing = Sensing(vehicle, obstacles, clock, position_fix)
@@ -797,13 +799,14 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             delay_s = rate * (self.poll_s + float(getattr(self.vehicle, "round_trip_s", 0.0)))
             ahead_s = self.lead_s + delay_s
             now = self.clock()
+            drag_1_s = self._drag_1_s(t, velocity, rate, now)
             sp = follower.steer(path, s_m=self._progress_s, ref_s_m=ref_s, position=(p.north_m, p.east_m,
                                 p.altitude_m), velocity=velocity, ahead_s=ahead_s, accel_mps2=s.accel_mps2,
                                 velocity_lag_s=self.velocity_lag_s, brake_lag_s=self.brake_lag_s,
                                 heading_rad=heading, limits=self.limits,
                                 clearance_fn=self.clearance_fn, previous_mps=ff_mps, dt_s=rate * (now - ff_at),
                                 speed_cap_mps=self._sight_cap_mps(p, path.point_at(self._progress_s)[1]),
-                                delay_s=delay_s)
+                                delay_s=delay_s, drag_1_s=drag_1_s)
             ref_s, heading = sp.ref_s, sp.heading_rad
             ff_mps, ff_at = (0.0 if sp.velocity is None else float(np.linalg.norm(sp.velocity))), now
             position = sp.position
@@ -813,11 +816,34 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             target = self._to_local(*position)
             velocity_ned = None if sp.velocity is None else (float(sp.velocity[0]), float(sp.velocity[1]),
                                                              float(-sp.velocity[2]))
-            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading, velocity_ned=velocity_ned)
+            if sp.acceleration is None or velocity_ned is None:
+                self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading,
+                                        velocity_ned=velocity_ned)
+            else:
+                a = sp.acceleration
+                self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading,
+                                        velocity_ned=velocity_ned, accel_ned=(float(a[0]), float(a[1]), float(-a[2])))
             self._setpoint_sent()
             self._say(self._flying_line(path, t), every=True)
             self._check_following(ff_mps, t)
             self._tick(wake_on_sensor=True)
+
+    def _drag_1_s(self, t, velocity, rate: float, now: float) -> float:
+        """Learn the vehicle's drag from this sample (:class:`~.drag.DragEstimate`; telemetry without an attitude
+        teaches nothing) and return the coefficient (1/s) to send as a feed-forward; 0 for an autopilot that does
+        not take an acceleration as one (``limits.acceleration_feedforward``)."""
+        if not getattr(self.limits, "acceleration_feedforward", False):
+            return 0.0
+        dt_s = 0.0 if math.isnan(self._drag_at) else rate * (now - self._drag_at)
+        self._drag_at = now
+        attitude = (float(getattr(t, name, math.nan)) for name in ("roll_rad", "pitch_rad", "heading_rad"))
+        self.drag.update(*attitude, velocity, min(dt_s, 0.5))
+        k = self.drag.k_1_s
+        if k > 0 and not self._drag_told:
+            self._drag_told = True
+            log.info("drag learnt from the attitude: %.2f m/s^2 per m/s; its lean goes with each setpoint as a "
+                     "feed-forward acceleration", k)
+        return k
 
     def _check_following(self, commanded_mps: float, t) -> None:
         """A vehicle in our mode that stands still for ``stuck_s`` while told to fly at ``stuck_mps`` or more has

@@ -29,7 +29,12 @@ from .errors import (
     result_name,
 )
 from .limits import FlightLimits, flight_limits
-from .link import TYPE_MASK_POSITION_VELOCITY_YAW, TYPE_MASK_POSITION_YAW, MavlinkLink
+from .link import (
+    TYPE_MASK_POSITION_VELOCITY_ACCEL_YAW,
+    TYPE_MASK_POSITION_VELOCITY_YAW,
+    TYPE_MASK_POSITION_YAW,
+    MavlinkLink,
+)
 from .modes import ModeKind, flight_mode, mode_kind, mode_numbers
 from .readiness import Readiness, readiness
 from .statustext import StatusText, StatusTextAssembler, refusal_reason
@@ -57,7 +62,8 @@ from .telemetry import (
 from .transport import signing_key
 
 __all__ = [
-    "STATUSTEXT_KEEP", "TYPE_MASK_POSITION_VELOCITY_YAW", "TYPE_MASK_POSITION_YAW", "Autopilot", "BadConnection",
+    "STATUSTEXT_KEEP", "TYPE_MASK_POSITION_VELOCITY_ACCEL_YAW", "TYPE_MASK_POSITION_VELOCITY_YAW",
+    "TYPE_MASK_POSITION_YAW", "Autopilot", "BadConnection",
     "CommandRejected", "CommandTimeout", "ConnectionTimeout", "FlightLimits", "LandedState", "LinkLost",
     "MavlinkLink", "MavlinkVehicle", "ModeKind", "Readiness", "SigningRequired", "StatusText", "StatusTextAssembler",
     "Telemetry", "TelemetryTimeout", "UnsupportedMode", "VehicleError", "autopilot_from_heartbeat", "command_name",

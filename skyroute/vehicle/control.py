@@ -195,14 +195,17 @@ class MavlinkVehicle(MavlinkLink):
         return target
 
     def goto_local(self, north_m: float, east_m: float, down_m: float, yaw_rad: float,
-                   velocity_ned: tuple[float, float, float] | None = None) -> None:
+                   velocity_ned: tuple[float, float, float] | None = None,
+                   accel_ned: tuple[float, float, float] | None = None) -> None:
         """Fly to a position in the autopilot's LOCAL_NED frame (m) with a heading (rad); re-sent until changed.
 
         ``velocity_ned`` (m/s, local NED) goes with the position as a feed-forward: the autopilot flies at that
         velocity plus its position loop's correction towards the position. Re-sends drop it after
-        ``feedforward_timeout_s`` without a new call (position only: the vehicle brakes there).
+        ``feedforward_timeout_s`` without a new call (position only: the vehicle brakes there). ``accel_ned``
+        (m/s^2, local NED; only with a velocity, and dropped with it) is a feed-forward acceleration, for an
+        autopilot that adds it to its velocity loop's output (``FlightLimits.acceleration_feedforward``).
         """
-        self.stream_setpoint(north_m, east_m, down_m, yaw_rad, velocity_ned)
+        self.stream_setpoint(north_m, east_m, down_m, yaw_rad, velocity_ned, accel_ned)
 
     def land(self) -> None:
         """Land where we are: ArduPilot LAND mode; PX4 MAV_CMD_NAV_LAND (falling back to its LAND mode).

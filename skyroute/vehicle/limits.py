@@ -81,6 +81,10 @@ class FlightLimits:
     round home when it has one that acts (:func:`geofence`), else None. ``return_altitude_m``: the height above
     home at which the autopilot's return (RTL) flies home in a straight line, climbing to it first when lower
     (ArduCopter RTL_ALT, PX4 RTL_RETURN_ALT; NaN unknown), named with its parameter in ``return_described``.
+    ``acceleration_feedforward``: the autopilot adds a setpoint's acceleration to its velocity loop's output and
+    holds it as it is (PX4 OFFBOARD), so the mission may send the drag's lean as one; False where that is not known
+    (ArduCopter GUIDED integrates a target acceleration into the target's velocity: after our last setpoint it would
+    speed the target up for GUID_TIMEOUT).
     """
 
     cruise_mps: float = math.inf
@@ -95,6 +99,7 @@ class FlightLimits:
     return_altitude_m: float = math.nan
     return_described: str = ""
     params: dict[str, float] = field(default_factory=dict)
+    acceleration_feedforward: bool = False
 
     def coast_m(self, speed_mps: float) -> float:
         """How far (m) past its last setpoint a vehicle commanded at ``speed_mps`` can go once commands stop.
@@ -207,4 +212,4 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
         response_s=0.6 if autopilot is Autopilot.PX4 else math.nan, fence=geofence(autopilot, params),
         return_altitude_m=get("RTL_RETURN_ALT"),
         return_described=f"RTL_RETURN_ALT={get('RTL_RETURN_ALT'):g} m" + assumed("RTL_RETURN_ALT"),
-        params=dict(params))
+        params=dict(params), acceleration_feedforward=autopilot is Autopilot.PX4)

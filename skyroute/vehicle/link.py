@@ -61,6 +61,10 @@ TYPE_MASK_POSITION_VELOCITY_YAW = (
     mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
     | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 )
+#: position + velocity + acceleration (feed-forwards) + yaw: ignore the yaw rate only. PX4 adds the acceleration to
+#: its velocity loop's output (OFFBOARD holds it as it is; ArduCopter's GUIDED would integrate it into a moving
+#: target, so it is sent to PX4 only: ``FlightLimits.acceleration_feedforward``).
+TYPE_MASK_POSITION_VELOCITY_ACCEL_YAW = mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 DEFAULT_SOURCE_SYSTEM = 255
 DEFAULT_SOURCE_COMPONENT = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
 _SUBJECT = {mavlink.MAV_CMD_COMPONENT_ARM_DISARM: "arm", mavlink.MAV_CMD_DO_SET_MODE: "mode",
@@ -80,6 +84,8 @@ class _Setpoint:
     #: feed-forward velocity (m/s, local NED) or None; dropped from re-sends once older than the feed-forward timeout
     velocity_ned: tuple[float, float, float] | None = None
     set_at_s: float = 0.0
+    #: feed-forward acceleration (m/s^2, local NED) or None; sent only with the velocity, and dropped with it
+    accel_ned: tuple[float, float, float] | None = None
 
 
 class MavlinkLink:
@@ -339,11 +345,14 @@ class MavlinkLink:
 
     # ------------------------------------------------------------------------------------------ setpoints
     def stream_setpoint(self, north_m: float, east_m: float, down_m: float, yaw_rad: float,
-                        velocity_ned: tuple[float, float, float] | None = None) -> None:
-        """Make this the setpoint re-sent at ``setpoint_rate_hz`` (local NED, m; yaw rad; velocity m/s), send it now."""
+                        velocity_ned: tuple[float, float, float] | None = None,
+                        accel_ned: tuple[float, float, float] | None = None) -> None:
+        """Make this the setpoint re-sent at ``setpoint_rate_hz`` (local NED, m; yaw rad; velocity m/s;
+        acceleration m/s^2, only with a velocity), send it now."""
         velocity = None if velocity_ned is None else tuple(float(v) for v in velocity_ned)
+        accel = None if accel_ned is None or velocity is None else tuple(float(a) for a in accel_ned)
         self._setpoint = _Setpoint(float(north_m), float(east_m), float(down_m), float(yaw_rad), velocity,
-                                   time.monotonic())
+                                   time.monotonic(), accel)
         self._streaming = True
         self._send_setpoint(self._setpoint)
 
@@ -397,11 +406,16 @@ class MavlinkLink:
         velocity = sp.velocity_ned
         if velocity is not None and now - sp.set_at_s > self.feedforward_timeout_s:
             velocity = None
-        mask = TYPE_MASK_POSITION_YAW if velocity is None else TYPE_MASK_POSITION_VELOCITY_YAW
+        accel = None if velocity is None else sp.accel_ned
+        if velocity is None:
+            mask = TYPE_MASK_POSITION_YAW
+        else:
+            mask = TYPE_MASK_POSITION_VELOCITY_YAW if accel is None else TYPE_MASK_POSITION_VELOCITY_ACCEL_YAW
         vn, ve, vd = (0.0, 0.0, 0.0) if velocity is None else velocity
+        an, ae, ad = (0.0, 0.0, 0.0) if accel is None else accel
         self._send(mavlink.MAVLink_set_position_target_local_ned_message(
             boot_ms, *self._target, mavlink.MAV_FRAME_LOCAL_NED, mask,
-            sp.north_m, sp.east_m, sp.down_m, vn, ve, vd, 0, 0, 0, sp.yaw_rad, 0))
+            sp.north_m, sp.east_m, sp.down_m, vn, ve, vd, an, ae, ad, sp.yaw_rad, 0))
 
     def _send_loop(self) -> None:
         period = 1.0 / self.setpoint_rate_hz

@@ -837,7 +837,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         dt_s = 0.0 if math.isnan(self._drag_at) else rate * (now - self._drag_at)
         self._drag_at = now
         attitude = (float(getattr(t, name, math.nan)) for name in ("roll_rad", "pitch_rad", "heading_rad"))
-        self.drag.update(*attitude, velocity, min(dt_s, 0.5))
+        self.drag.update(*attitude, velocity, dt_s if dt_s <= 0.5 else 0.0)  # a gap (a hold) starts afresh
         k = self.drag.k_1_s
         if k > 0 and not self._drag_told:
             self._drag_told = True

@@ -145,7 +145,6 @@ class Autopilot(CommandHandlers, TaskControl):
                                               else "MPC_ACC_HOR"]
             lim.max_climb_m_s = p["MPC_Z_VEL_MAX_UP"]
             lim.max_descent_m_s = p["MPC_Z_VEL_MAX_DN"]
-            lim.max_tilt_accel_m_s2 = 9.81 * math.tan(math.radians(45.0))  # MPC_TILTMAX_AIR's default
         else:
             lim.max_horizontal_speed_m_s = p["WPNAV_SPEED"] / 100.0
             lim.max_horizontal_accel_m_s2 = p["WPNAV_ACCEL"] / 100.0
@@ -357,7 +356,7 @@ class Autopilot(CommandHandlers, TaskControl):
         """Advance the vehicle by one physics step of ``dt_s`` simulated seconds."""
         self._boot_events()
         s = self.quad.state
-        wind = np.zeros(3)  # still air: the airframe's drag is always there
+        wind = None
         if self.cfg.wind_m_s != (0.0, 0.0) or self.cfg.gust_m_s > 0:
             if self.cfg.gust_m_s > 0:
                 k = dt_s / 3.0

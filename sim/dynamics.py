@@ -31,16 +31,14 @@ class Limits:
     position_gain_1_s: float = 1.0
     velocity_gain_1_s: float = 4.0
     yaw_gain_1_s: float = 2.0
-    #: Linear drag coefficient (1/s) against the air (still air, or the wind): a real airframe's drag, which the
-    #: velocity loop leans into (ArduCopter SITL's airframe measured 0.54/s, PX4 SIH's 1.0/s).
+    #: Linear drag coefficient (1/s) coupling the airframe to the wind.
     drag_1_s: float = 0.3
     #: Horizontal acceleration the airframe's tilt can give at most (m/s^2): g tan(30 degrees), ArduCopter's
-    #: ANGLE_MAX default (the PX4 personality sets MPC_TILTMAX_AIR's 45). The trajectory limit
-    #: (``max_horizontal_accel_m_s2``, WPNAV_ACCEL / MPC_ACC_HOR) shapes what the vehicle is asked to do; holding
-    #: it against the drag comes on top, up to this.
+    #: ANGLE_MAX default (PX4's MPC_TILTMAX_AIR is 45). The trajectory limit (``max_horizontal_accel_m_s2``,
+    #: WPNAV_ACCEL / MPC_ACC_HOR) shapes what the vehicle is asked to do; holding it against the wind's drag comes
+    #: on top, up to this.
     max_tilt_accel_m_s2: float = 9.81 * math.tan(math.radians(30.0))
-    #: Time constant (s) of the velocity loop's integrator, which learns the drag and leans into it (after a turn
-    #: the lean still points the old way for about that long: the vehicle swings wide of the next leg).
+    #: Time constant (s) of the velocity loop's integrator, which learns the wind's drag and leans into it.
     wind_integrator_s: float = 1.0
 
 

@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 GRAVITY_MPS2 = 9.80665
 
 
@@ -61,10 +59,10 @@ class DragEstimate:
                  max_1_s: float = 2.0, wind_prior: float = 1.0) -> None:
         self.min_speed_mps, self.max_climb_mps = min_speed_mps, max_climb_mps
         self.min_time_s, self.max_1_s = min_time_s, max_1_s
-        # normal equations of drag = -k v + c (c = k * wind), unknowns (k, c_north, c_east), weighted by time
-        self._normal = np.diag([0.0, wind_prior, wind_prior])
-        self._rhs = np.zeros(3)
-        self._time_s = 0.0
+        # sums (time-weighted) of the normal equations of thrust = k v - c (c = k * wind), unknowns k, c_n, c_e
+        self._vv = self._vn = self._ve = self._time_s = 0.0
+        self._av = self._an = self._ae = 0.0
+        self.wind_prior = wind_prior
         self._previous: tuple[float, float] | None = None
 
     def update(self, roll_rad: float, pitch_rad: float, yaw_rad: float, velocity_neu, dt_s: float) -> None:
@@ -80,10 +78,12 @@ class DragEstimate:
             an -= (vn - self._previous[0]) / dt_s
             ae -= (ve - self._previous[1]) / dt_s
         self._previous = (vn, ve)
-        # thrust = -drag = k v - c: rows (v_n, -1, 0) -> a_n and (v_e, 0, -1) -> a_e
-        rows = np.array([[vn, -1.0, 0.0], [ve, 0.0, -1.0]])
-        self._normal += dt_s * rows.T @ rows
-        self._rhs += dt_s * rows.T @ np.array([an, ae])
+        self._vv += (vn * vn + ve * ve) * dt_s
+        self._vn += vn * dt_s
+        self._ve += ve * dt_s
+        self._av += (an * vn + ae * ve) * dt_s
+        self._an += an * dt_s
+        self._ae += ae * dt_s
         self._time_s += dt_s
 
     @property
@@ -91,5 +91,8 @@ class DragEstimate:
         """The drag coefficient (1/s): 0 until enough level flight at speed has been seen."""
         if self._time_s < self.min_time_s:
             return 0.0
-        k = float(np.linalg.solve(self._normal, self._rhs)[0])
+        # the wind's part eliminated: c = (k * sum v - sum a) / (T + prior)
+        t = self._time_s + self.wind_prior
+        k = ((self._av - (self._vn * self._an + self._ve * self._ae) / t)
+             / (self._vv - (self._vn * self._vn + self._ve * self._ve) / t))
         return min(max(k, 0.0), self.max_1_s)

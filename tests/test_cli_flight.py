@@ -204,8 +204,8 @@ def test_600_m_mission_time(start_sim, tmp_path, capsys, watchdog, goal):
     cruise_m_s, climb_m_s, land_m_s = 10.0, 3.0, 0.7
     # 5x: the client steers on the wall clock (50 Hz polls and position fixes), so each step is 0.1 s of
     # simulated time; the README demo measured ~1.15 at 5x and 10x. Stock link timeouts: at 5x the client's 1 Hz
-    # heartbeat and its setpoint stream stay inside them, and scaled ones (COM_OF_LOSS_T 5 s) would rightly make
-    # its last-command bound (the coast until the offboard-loss failsafe) five times as cautious: ratio ~1.39
+    # heartbeat and its setpoint stream stay inside them (scaled ones once made its last-command bound five times
+    # as cautious, taking COM_OF_LOSS_T for the coast: ratio ~1.39)
     sim = start_sim(speedup=5.0, scale_timeouts=False)
     lat, lon = goal
     code = mp.main(["--goal_lat", f"{lat:.9f}", "--goal_lon", f"{lon:.9f}", "--alt", f"{ALT_M:g}", "--safety",

@@ -21,8 +21,7 @@ PROJECT_ROOT = Path(__file__).resolve().parents[2]
 #: Above this speed-up the bundled sim multiplies its link-loss timeouts by it (``--scale-timeouts``): the client
 #: paces heartbeats (1 Hz) and setpoints on the wall clock, the autopilot times them on its own, and past 5x a
 #: busy machine's pause of a fraction of a second is over COM_OF_LOSS_T (1 s) of simulated time. Up to 5x the stock
-#: values stay, so the flight is the one the real parameters give (a scaled COM_OF_LOSS_T rightly makes the
-#: client's last-command bound more cautious: the demo took 94 s instead of 77 s at 5x).
+#: values stay, so the flight is the one the real parameters give.
 SCALE_TIMEOUTS_ABOVE = 5.0
 
 

@@ -8,10 +8,10 @@ so it neither brakes at each waypoint nor crawls behind a slow link.
 
 Last-command safety: if this setpoint is the last one the autopilot gets (a crashed client, a cut link), the
 autopilot keeps acting on it for a while (ArduCopter moves a position + velocity target on along the velocity
-for GUID_TIMEOUT, 3 s; PX4 overshoots the position by its feed-forward until COM_OF_LOSS_T) and then brakes:
-``limits.coast_m(speed)`` metres along the feed-forward. :func:`feedforward_cap_mps` keeps that straight
-continuation out of every building's planning margin (``clearance_fn``), so no single command can carry the
-vehicle into a building, whatever happens next.
+for GUID_TIMEOUT, 3 s; PX4 holds the position, its feed-forward carrying the vehicle about ``v / MPC_XY_P`` past
+it) and then brakes: ``limits.coast_m(speed)`` metres along the feed-forward. :func:`feedforward_cap_mps` keeps
+that straight continuation out of every building's planning margin (``clearance_fn``), so no single command can
+carry the vehicle into a building, whatever happens next.
 """
 
 from __future__ import annotations

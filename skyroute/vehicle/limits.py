@@ -14,6 +14,9 @@ Measured on the SITL binaries in ../shared/sitl (ArduCopter V4.7.0-dev, PX4 v1.1
 - PX4 OFFBOARD holds the last position setpoint with its velocity feed-forward until COM_OF_LOSS_T (1 s), then
   takes COM_OBL_RC_ACT: 5 m/s ended 6-7 m past the last target. With the default (0, position mode) and no RC,
   PX4 then descends at 0.6-1.15 m/s (run to run) and lands where it is ("Landing detected", "Disarmed by landing").
+  A held position target does not move, so the feed-forward settles the vehicle about ``v / MPC_XY_P`` past it
+  however long COM_OF_LOSS_T is: with COM_OF_LOSS_T = 5 s, 5 m/s stopped 6.6 m past the last target after 3 s and
+  stayed there (6.9 m with the drag's lean, 1 m/s^2 per m/s, held as an acceleration feed-forward too).
 """
 
 from __future__ import annotations
@@ -207,7 +210,8 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
     accel = get("MPC_ACC_HOR")
     return FlightLimits(
         cruise_mps=get("MPC_XY_VEL_MAX"), accel_mps2=accel, lateral_accel_mps2=0.9 * accel,
-        hold_last_s=max(get("COM_OF_LOSS_T"), 1.0 / max(get("MPC_XY_P"), 0.1)), brake_mps2=accel,
+        # our setpoints always carry a position: PX4 holds it, so COM_OF_LOSS_T does not lengthen the coast
+        hold_last_s=1.0 / max(get("MPC_XY_P"), 0.1), brake_mps2=accel,
         link_loss=link_loss + assumed("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_DLL_ACT"), leaves_flying=flying,
         response_s=0.6 if autopilot is Autopilot.PX4 else math.nan, fence=geofence(autopilot, params),
         return_altitude_m=get("RTL_RETURN_ALT"),

@@ -3,11 +3,9 @@
 ``type_mask`` ignore bits are honoured per axis: a position axis whose bit is clear is
 position-controlled (its velocity, if not ignored, is feed-forward); an axis with only velocity is
 velocity-controlled; an axis with neither holds the position it had when the setpoint arrived.
-Accelerations are ignored (``ACCEL_FEEDFORWARD`` off): taken as PX4 OFFBOARD takes them, a feed-forward on the
-velocity loop (the dynamics support it), a client that learns its drag from the attitude at a 20x speed-up
-misread the sim's 1 s integrator and stalled a test flight twice in five CI runs; kept off until that is
-understood. The ArduPilot personality would ignore them anyway (ArduCopter's GUIDED integrates a target
-acceleration into a moving target).
+An acceleration that goes with a position or a velocity is a feed-forward on the velocity loop, as PX4 OFFBOARD
+takes it (PX4 personality only: ArduCopter's GUIDED integrates a target acceleration into a moving target, which
+is not simulated, so the ArduPilot personality ignores it).
 
 Classic dialect (udacidrone ``PX4=False``, outside ``--strict`` only): ``(type_mask & 0x3000)``
 ``0x1000`` = takeoff, ``0x2000`` = land at (x, y), ``0x3000`` = loiter; and ``z`` is a positive
@@ -56,7 +54,7 @@ def _build(ap, mask: int, pos_neu, vel_neu, yaw: float, yaw_rate: float, accel_n
             vel[axis] = float(vel_neu[axis])
         if not pos_used and not vel_used:
             pos[axis] = float(here[axis])
-        elif ACCEL_FEEDFORWARD and ap.is_px4 and not mask & (64 << axis) \
+        elif ap.is_px4 and not mask & (64 << axis) \
                 and not mask & M.POSITION_TARGET_TYPEMASK_FORCE_SET:
             acc[axis] = float(accel_neu[axis])
     yaw_v = yaw if not mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE else NAN
@@ -132,5 +130,3 @@ def global_int_target(ap, link, msg) -> ControlTarget | None:
 
 
 CLASSIC_BITS = 0x3000
-#: Take a setpoint's acceleration as a feed-forward (PX4 personality); off, see the module docstring.
-ACCEL_FEEDFORWARD = False

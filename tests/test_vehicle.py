@@ -360,8 +360,8 @@ def test_px4_defaults_land_without_rc_and_only_hold_leaves_the_vehicle_hovering(
 
 
 def test_a_longer_px4_offboard_timeout_does_not_lengthen_the_coast_past_a_held_position():
-    # PX4 1.15 SITL, COM_OF_LOSS_T = 5 s: 5 m/s stopped 6.6 m past the last position target and stayed there
-    # until the failsafe; the coast bound (v / MPC_XY_P, then braking) is 9.4 m either way, not 5 s x 5 m/s
+    # PX4 1.15 SITL, COM_OF_LOSS_T = 5 s: 5 m/s went 6.6 m past the last position target and settled back towards
+    # 5.3 m until the failsafe; the coast bound (v / MPC_XY_P, then braking) is 9.4 m either way, not 5 s x 5 m/s
     params = {"COM_OBL_RC_ACT": 0.0, "NAV_DLL_ACT": 0.0, "MPC_ACC_HOR": 3.0, "MPC_XY_P": 0.95}
     short = vh.flight_limits(vh.Autopilot.PX4, {**params, "COM_OF_LOSS_T": 1.0}, our_system=255)
     long = vh.flight_limits(vh.Autopilot.PX4, {**params, "COM_OF_LOSS_T": 5.0}, our_system=255)

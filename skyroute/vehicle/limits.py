@@ -15,8 +15,8 @@ Measured on the SITL binaries in ../shared/sitl (ArduCopter V4.7.0-dev, PX4 v1.1
   takes COM_OBL_RC_ACT: 5 m/s ended 6-7 m past the last target. With the default (0, position mode) and no RC,
   PX4 then descends at 0.6-1.15 m/s (run to run) and lands where it is ("Landing detected", "Disarmed by landing").
   A held position target does not move, so the feed-forward settles the vehicle about ``v / MPC_XY_P`` past it
-  however long COM_OF_LOSS_T is: with COM_OF_LOSS_T = 5 s, 5 m/s stopped 6.6 m past the last target after 3 s and
-  stayed there (6.9 m with the drag's lean, 1 m/s^2 per m/s, held as an acceleration feed-forward too).
+  however long COM_OF_LOSS_T is: with COM_OF_LOSS_T = 5 s, 5 m/s went 6.6 m past the last target in 3 s and settled
+  back towards 5.3 m until the failsafe (6.9 m with the drag's lean, 1 m/s^2 per m/s, held as an acceleration too).
 """
 
 from __future__ import annotations

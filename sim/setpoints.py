@@ -54,8 +54,7 @@ def _build(ap, mask: int, pos_neu, vel_neu, yaw: float, yaw_rate: float, accel_n
             vel[axis] = float(vel_neu[axis])
         if not pos_used and not vel_used:
             pos[axis] = float(here[axis])
-        elif ap.is_px4 and not mask & (64 << axis) \
-                and not mask & M.POSITION_TARGET_TYPEMASK_FORCE_SET:
+        elif ap.is_px4 and not mask & (64 << axis) and not mask & M.POSITION_TARGET_TYPEMASK_FORCE_SET:
             acc[axis] = float(accel_neu[axis])
     yaw_v = yaw if not mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE else NAN
     rate_v = yaw_rate if not mask & M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE else NAN

@@ -1,10 +1,11 @@
 """Steering along a :class:`~skyroute.flight.path.SmoothPath`: the setpoint to send now, in the map frame.
 
-Pure functions, no vehicle and no clock. Each poll the follower predicts where the vehicle will be while this
-setpoint is the autopilot's latest (``ahead_s``: the link's round trip, the autopilot's response and one poll,
-at its current velocity) and commands the path point nearest to that, with the scheduled velocity along the path
-as a feed-forward: the autopilot flies the schedule and its position loop only corrects the cross-track error,
-so it neither brakes at each waypoint nor crawls behind a slow link.
+Pure functions, no vehicle and no clock. Each poll the follower predicts where the vehicle will be when this
+setpoint reaches it (:func:`predict_over_link`: over the link's round trip it flies the setpoints already sent)
+and while it is the autopilot's latest (``ahead_s``: the autopilot's response and one poll, at the predicted
+velocity), and commands the path point nearest to that, with the scheduled velocity along the path as a
+feed-forward: the autopilot flies the schedule and its position loop only corrects the cross-track error, so it
+neither brakes at each waypoint nor crawls behind a slow link.
 
 Last-command safety: if this setpoint is the last one the autopilot gets (a crashed client, a cut link), the
 autopilot keeps acting on it for a while (ArduCopter moves a position + velocity target on along the velocity
@@ -69,6 +70,73 @@ def feedforward_cap_mps(limits: Limits | None, clearance_fn: ClearanceFn | None,
     return min(speed_mps, limits.speed_for_clearance_mps(clear_m) / horizontal)
 
 
+class SentCommands:
+    """The feed-forward velocities sent lately, ``(time_s, velocity or None)`` oldest first, for
+    :func:`predict_over_link`."""
+
+    def __init__(self) -> None:
+        self.commands: list[tuple[float, np.ndarray | None]] = []
+
+    def add(self, time_s: float, velocity) -> None:
+        """A setpoint sent at ``time_s`` (our clock) with this feed-forward (map n, e, up m/s; None: a position)."""
+        self.commands.append((time_s, None if velocity is None else np.array(velocity, float)))
+
+    def drop_older(self, since_s: float) -> None:
+        """Forget what was sent before ``since_s``, but the last of it: the command in effect then."""
+        c = self.commands
+        k = 0
+        while k + 1 < len(c) and c[k + 1][0] <= since_s:
+            k += 1
+        if k:
+            del c[:k]
+
+
+def predict_over_link(position, velocity, sent, *, now_s: float, rate: float, down_s: float, up_s: float,
+                      response_s: float, accel_mps2: float, step_s: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Where the vehicle will be, and how fast, when a setpoint sent now reaches it: ``(position, velocity)``, map
+    frame (m; m/s), like the measured ``position`` and ``velocity`` it starts from.
+
+    A Smith predictor over the link: the measurement is ``down_s`` old (autopilot seconds) and the setpoint takes
+    ``up_s`` to arrive, so over those seconds the vehicle flies the feed-forward velocities already sent, not the
+    one it was measured at. ``sent`` holds ``(time_s, velocity)`` pairs (our clock, the feed-forward sent then; None
+    for a plain position, taken as a stop), oldest first; ``rate`` is autopilot seconds per second of ours. The
+    vehicle's velocity follows the command in effect (sent ``up_s`` earlier) as a first-order lag of
+    ``response_s`` at most ``accel_mps2``. Before the first setpoint sent it keeps the measured velocity. With no
+    delay either way this is the measurement itself. Steering from the measured state instead closes the position
+    loop over the round trip: with a second each way (a 200 ms link at 5x) the speed swung 0-11 m/s round a
+    6 m/s command, period ~4 s, and the vehicle came 3.5 m from a building it should pass 5 m off.
+
+    >>> p, v = predict_over_link((0, 0, 5), (10, 0, 0), [(-1.0, (10, 0, 0))], now_s=0.0, rate=1.0, down_s=0.5,
+    ...                          up_s=0.5, response_s=0.5, accel_mps2=3.0)
+    >>> [round(float(x), 2) for x in p], [round(float(x), 2) for x in v]
+    ([10.0, 0.0, 5.0], [10.0, 0.0, 0.0])
+    """
+    p = np.array(position, float)
+    v = np.array(velocity, float)
+    window = max(down_s, 0.0) + max(up_s, 0.0)
+    if window <= 0.0:
+        return p, v
+    # the commands as the vehicle gets them: (arrival, velocity), autopilot seconds from the measurement
+    arrivals = [(rate * (t - now_s) + down_s + up_s, None if c is None else np.asarray(c, float)) for t, c in sent]
+    command, k = v.copy(), 0
+    n = max(int(math.ceil(window / step_s)), 1)
+    dt = window / n
+    tau = max(response_s, dt)
+    for j in range(n):
+        tau_j = j * dt
+        while k < len(arrivals) and arrivals[k][0] <= tau_j + 1e-9:
+            command = np.zeros(3) if arrivals[k][1] is None else arrivals[k][1]
+            k += 1
+        dv = (command - v) * (dt / tau)
+        limit = accel_mps2 * dt
+        norm = float(np.linalg.norm(dv))
+        if norm > limit > 0.0:
+            dv *= limit / norm
+        p += (v + 0.5 * dv) * dt
+        v += dv
+    return p, v
+
+
 def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, ahead_s: float,
           accel_mps2: float, velocity_lag_s: float, heading_rad: float, limits: Limits | None = None,
           clearance_fn: ClearanceFn | None = None, previous_mps: float = 0.0, dt_s: float = 0.0,
@@ -85,10 +153,11 @@ def steer(path: SmoothPath, *, s_m: float, ref_s_m: float, position, velocity, a
 
     ``speed_cap_mps`` caps the feed-forward (the mission's sensing limit,
     :meth:`~.replanning.ReplanningMixin._sight_cap_mps`; a vehicle over it is told as much under it); where it is
-    below the schedule the target has no lead beyond ``delay_s`` (the part of ``ahead_s`` that is the link's round
-    trip and the poll: where the vehicle will be when the setpoint reaches it; a target behind that, 400 ms of
-    round trip at 3-9 m/s, held an ArduPilot vehicle under its wide sectors' cap to 2-3 m/s, 1.9x the airborne
-    time).
+    below the schedule the target has no lead beyond ``delay_s`` (the part of ``ahead_s`` that is the link's delay
+    and the poll: where the vehicle will be when the setpoint reaches it; a target behind that, 400 ms of round
+    trip at 3-9 m/s, held an ArduPilot vehicle under its wide sectors' cap to 2-3 m/s, 1.9x the airborne time).
+    The mission predicts ``position`` and ``velocity`` over the round trip first (:func:`predict_over_link`), so
+    its ``delay_s`` is the poll alone.
 
     The feed-forward's direction is the path's ``velocity_lag_s`` ahead (the autopilot's velocity loop takes
     about that long to turn); its speed is the schedule's ``max(velocity_lag_s, brake_lag_s)`` ahead, so an

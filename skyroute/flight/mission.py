@@ -770,6 +770,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         trim_at, self._trim_m = ff_at, np.zeros(2)
         self._near_goal_since = math.nan
         sent_at = -math.inf
+        sent = follower.SentCommands()
         while True:
             p = self._map_position()
             self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), self._progress_s)
@@ -796,12 +797,19 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             t = self.vehicle.telemetry
             velocity = (t.local_v_north_mps, t.local_v_east_mps, -t.local_v_down_mps)
             rate = self._autopilot_rate()
-            delay_s = rate * (self.poll_s + float(getattr(self.vehicle, "round_trip_s", 0.0)))
-            ahead_s = self.lead_s + delay_s
             now = self.clock()
+            # the link's round trip is flown on the setpoints already sent (a Smith predictor); the poll is ahead
+            round_trip_s = float(getattr(self.vehicle, "round_trip_s", 0.0) or 0.0)
+            sent.drop_older(now - round_trip_s - self.poll_s)
+            predicted, predicted_v = follower.predict_over_link(
+                (p.north_m, p.east_m, p.altitude_m), velocity, sent.commands, now_s=now, rate=rate,
+                down_s=0.5 * rate * round_trip_s, up_s=0.5 * rate * round_trip_s,
+                response_s=max(self.brake_lag_s, self.velocity_lag_s), accel_mps2=s.accel_mps2)
+            delay_s = rate * self.poll_s
+            ahead_s = self.lead_s + delay_s
             drag_1_s = self._drag_1_s(t, velocity, rate, now)
-            sp = follower.steer(path, s_m=self._progress_s, ref_s_m=ref_s, position=(p.north_m, p.east_m,
-                                p.altitude_m), velocity=velocity, ahead_s=ahead_s, accel_mps2=s.accel_mps2,
+            sp = follower.steer(path, s_m=self._progress_s, ref_s_m=ref_s, position=predicted,
+                                velocity=predicted_v, ahead_s=ahead_s, accel_mps2=s.accel_mps2,
                                 velocity_lag_s=self.velocity_lag_s, brake_lag_s=self.brake_lag_s,
                                 heading_rad=heading, limits=self.limits,
                                 clearance_fn=self.clearance_fn, previous_mps=ff_mps, dt_s=rate * (now - ff_at),
@@ -809,6 +817,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                                 delay_s=delay_s, drag_1_s=drag_1_s)
             ref_s, heading = sp.ref_s, sp.heading_rad
             ff_mps, ff_at = (0.0 if sp.velocity is None else float(np.linalg.norm(sp.velocity))), now
+            sent.add(now, sp.velocity)
             position = sp.position
             if sp.velocity is None and i == last:  # holding over the goal: take out the autopilot's steady offset
                 position = self._trim(waypoints[last], p, t, rate * (now - trim_at))

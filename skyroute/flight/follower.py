@@ -119,7 +119,7 @@ def predict_over_link(position, velocity, sent, *, now_s: float, rate: float, do
     # the commands as the vehicle gets them: (arrival, velocity), autopilot seconds from the measurement
     arrivals = [(rate * (t - now_s) + down_s + up_s, None if c is None else np.asarray(c, float)) for t, c in sent]
     command, k = v.copy(), 0
-    n = max(int(math.ceil(window / step_s)), 1)
+    n = min(max(int(math.ceil(window / step_s)), 1), 200)  # a long window (a round trip after an outage) in 200
     dt = window / n
     tau = max(response_s, dt)
     for j in range(n):

@@ -42,6 +42,10 @@ from .world import CityMap
 log = logging.getLogger(__name__)
 M = mavlink
 NAN = math.nan
+#: ``--gps-noise``: the position estimate's error drifts with this correlation time (s) ...
+GPS_CORRELATION_S = 10.0
+#: ... and the estimator smooths it over this long (s): a real EKF's position does not jump between its updates.
+GPS_SMOOTHING_S = 2.0
 #: PX4 modes that prevent arming: the mode PX4 returns to after a disarm is never one of them.
 _PX4_PREVENTS_ARMING = {"LAND", "RTL"}
 
@@ -98,7 +102,8 @@ class Autopilot(CommandHandlers, TaskControl):
         self.setpoint_s = -math.inf  # simulated time the last setpoint arrived
         self.following = False
         self.speed_limit_m_s = NAN
-        self.gps_noise = np.zeros(3)
+        self.gps_noise = np.zeros(3)  # the estimate's error (m, map frame; height stays 0)
+        self.gps_drift = np.zeros(2)  # the drift behind it, before the estimator's smoothing
         self.gust = np.zeros(3)
         self.ground = GroundLogic(self)
         self.failsafes = Failsafes(self)
@@ -120,9 +125,10 @@ class Autopilot(CommandHandlers, TaskControl):
         return self.quad.state.position_neu + self.estimate_error_neu()
 
     def estimate_error_neu(self) -> np.ndarray:
-        """The position estimate's error (m, map frame): the horizontal ``--gps-noise``. Height is held on the
-        barometer, as PX4's and ArduPilot's estimators do by default, so the vertical GPS error only shows in the
-        reported altitude."""
+        """The position estimate's error (m, map frame): the horizontal ``--gps-noise``. Height comes from the
+        barometer, as PX4's (EKF2_HGT_REF) and ArduPilot's (EK3_SRC1_POSZ) estimators take it by default, so the
+        GPS's vertical error shows in neither the altitude held nor the altitude reported (GPS_RAW_INT states it
+        as ``v_acc``)."""
         error = np.zeros(3)
         if self.cfg.gps_noise_m > 0:
             error[:2] = self.gps_noise[:2]
@@ -369,10 +375,7 @@ class Autopilot(CommandHandlers, TaskControl):
                                  self.estimate_error_neu())
         self.sim_time_s += dt_s
         if self.cfg.gps_noise_m > 0:
-            k = dt_s / 10.0
-            for i in range(3):
-                kick = self.cfg.gps_noise_m * math.sqrt(2 * k) * self.rng.gauss(0, 1)
-                self.gps_noise[i] += -k * self.gps_noise[i] + kick
+            self._drift_gps(dt_s)
         speed = float(np.linalg.norm(s.velocity_neu))
         hit = self.recorder.truth.check(s.position_neu, self.airborne, self.sim_time_s, speed)
         if hit is not None:
@@ -429,8 +432,6 @@ class Autopilot(CommandHandlers, TaskControl):
     def snapshot(self) -> tm.TelemetrySnapshot:
         s = self.quad.state
         pos = self.position_neu  # the estimate (a new array)
-        if self.cfg.gps_noise_m > 0 and self.airborne:
-            pos[2] += self.gps_noise[2]  # reported, not flown: height is held on the barometer
         home = self.home_neu if self.home_neu is not None else self.boot_neu
         lat, lon, alt = self.city.map_to_geodetic(*pos)
         hlat, hlon, halt = self.city.map_to_geodetic(*home)
@@ -456,6 +457,17 @@ class Autopilot(CommandHandlers, TaskControl):
             fix_type, has_fix, olat, olon, oalt, not self.is_px4, self.sensor is not None,
             *self.gps_accuracy(),
         )
+
+    def _drift_gps(self, dt_s: float) -> None:
+        """Move the estimate's error on by ``dt_s``: a first-order Gauss-Markov drift (``GPS_CORRELATION_S``), seen
+        through the estimator's smoothing (a first-order lag of ``GPS_SMOOTHING_S``, the drift's spread scaled so
+        the error's own is ``--gps-noise``). Unsmoothed, the error jumped ~0.13 m per 20 ms step at 2 m: a hovering
+        vehicle's reported position shook by 0.6 m, which no EKF fusing an IMU reports."""
+        k = dt_s / GPS_CORRELATION_S
+        spread = self.cfg.gps_noise_m * math.sqrt((GPS_CORRELATION_S + GPS_SMOOTHING_S) / GPS_CORRELATION_S)
+        for i in (0, 1):
+            self.gps_drift[i] += -k * self.gps_drift[i] + spread * math.sqrt(2 * k) * self.rng.gauss(0, 1)
+        self.gps_noise[:2] += (dt_s / GPS_SMOOTHING_S) * (self.gps_drift - self.gps_noise[:2])
 
     def gps_accuracy(self) -> tuple[int, int, int, int]:
         """GPS_RAW_INT's HDOP, VDOP (x 100) and horizontal and vertical accuracy (mm): what the real SITLs report

@@ -59,7 +59,8 @@ class SimConfig:
     gust_m_s : float
         Standard deviation of wind gusts (m/s), per horizontal axis.
     gps_noise_m : float
-        Standard deviation of the position estimate's error (m), 1-order Gauss-Markov with 10 s correlation: the
+        Standard deviation of the position estimate's error (m), a Gauss-Markov drift with 10 s correlation,
+        smoothed over 2 s as an estimator fusing an IMU smooths it (``sim.autopilot._drift_gps``): the
         reported position carries it, and the autopilot flies its estimate, so the vehicle itself is off every
         commanded position by its horizontal part (collisions use the truth).
     seed : int

@@ -36,13 +36,14 @@ START, GOAL = (-85.0, 0.5), (85.0, 0.5)
 
 
 class SensingVehicle(FakeVehicle):
-    """The fake with a 72-sector OBSTACLE_DISTANCE-like sensor at 10 Hz of the fake clock, seeing ``truth``."""
+    """The fake with a 72-sector OBSTACLE_DISTANCE-like sensor at 10 Hz of the fake clock, seeing ``truth``
+    (``sectors=8``: ArduPilot's 45 degree proximity sectors, all read at once)."""
 
-    def __init__(self, clock, truth, *, range_m=30.0, **kwargs):
+    def __init__(self, clock, truth, *, range_m=30.0, sectors=72, **kwargs):
         super().__init__(clock, **kwargs)
         lo, hi = truth[:, :3] - truth[:, 3:], truth[:, :3] + truth[:, 3:]
         self.lo, self.hi, self.top = lo[:, :2], hi[:, :2], hi[:, 2]
-        self.range_m = range_m
+        self.range_m, self.sectors = range_m, sectors
         self.queue = []
         self.next_scan_s = 0.0
         self.sensing = True
@@ -58,9 +59,10 @@ class SensingVehicle(FakeVehicle):
     def _take(self, north_m, east_m, altitude_m, **stamp):
         """Queue a scan taken at the map point (the boxes reaching ``altitude_m``), with ``stamp``'s attributes."""
         tall = self.top >= altitude_m
-        d = sector_minima(self.lo[tall], self.hi[tall], north_m, east_m, 72, 0.0, self.range_m)
-        self.queue.append(SimpleNamespace(bearings_rad=np.radians(np.arange(0.0, 360.0, 5.0)),
-                                          half_width_rad=math.radians(2.5), distances_m=d, max_range_m=self.range_m,
+        n = self.sectors
+        d = sector_minima(self.lo[tall], self.hi[tall], north_m, east_m, n, 0.0, self.range_m)
+        self.queue.append(SimpleNamespace(bearings_rad=np.radians(np.arange(0.0, 360.0, 360.0 / n)),
+                                          half_width_rad=math.pi / n, distances_m=d, max_range_m=self.range_m,
                                           received_s=self.clock.now, **stamp))
 
     def sensor_readings(self):
@@ -562,6 +564,81 @@ def test_scans_matched_to_the_map_bring_a_drifted_estimate_back_onto_the_route(m
         assert np.median(_off_route_m(street, result.waypoints[:, :2])) == pytest.approx(2.0, abs=0.3)
 
 
+
+@pytest.mark.parametrize("keep_off", [True, False])
+def test_a_wall_the_sensor_reads_closer_than_the_estimate_says_is_kept_off(keep_off, monkeypatch):
+    """A route up the central street 3.5 m from the east blocks' faces (the margin is 3 m), the estimate 2 m west
+    of the truth: flying its estimate, the vehicle itself runs 1.5-1.7 m from the faces while the map says 3.5 m. The
+    readings are relative to the vehicle, so they say so: the route shifts west until they read 80 % of the
+    margin (2.4 m) again, and back once past the blocks. Here the live layer is kept from replanning (where it
+    takes the readings for the map's building, placed where the estimate puts them, it does not); without the
+    shift the vehicle flies the street that close to the walls."""
+    clock = FakeClock()
+    error, start_ne, goal_ne = (0.0, -2.0), (-85.0, 6.5), (85.0, 6.5)
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    start = (start_ne[0] - OFFSET.north_m + error[0], start_ne[1] - OFFSET.east_m + error[1])
+    v = _DriftingVehicle(clock, STALE, error, accuracy_m=0.7, start=start)
+    obstacles = _obstacles(goal_ne)
+    monkeypatch.setattr(obstacles, "check", lambda *args, **kwargs: None)
+    mission = make_mission(v, clock, lambda n, e: gm.plan((n, e), goal_ne, snap_start=True).waypoints,
+                           goal_ne=goal_ne, obstacles=obstacles, replan_errors=(PlanningError,),
+                           replan_margin_m=SAFETY, leg_timeout_s=120.0)
+    if not keep_off:
+        mission.keep_off = mission.sensing.keep_off = None
+    result = mission.run()
+    assert result.completed and not result.replans
+    truth = np.array(v.truth)
+    clearance = _track_clearance(np.column_stack([np.zeros(len(truth)), truth]), STALE[:4])
+    if keep_off:
+        assert clearance >= 0.8 * SAFETY - 0.25
+        assert mission.keep_off.largest_m == pytest.approx(0.9, abs=0.25)
+        assert truth[-1, 1] == pytest.approx(goal_ne[1] - error[1], abs=0.3)  # the shift relaxed past the blocks
+    else:
+        assert clearance < 1.8  # 1.5 m and the grid route's half cell
+
+class _RoofVehicle(SensingVehicle):
+    """The sensing fake with a downward rangefinder over a flat ground and one roof ``roof_top_m`` high under
+    north ``roof_n`` (a low building the map lacks; the horizontal sensor, at the flight altitude, misses it).
+    ``altitudes`` keeps the true altitude over the roof."""
+
+    def __init__(self, clock, truth, roof_n, roof_top_m, **kwargs):
+        super().__init__(clock, truth, **kwargs)
+        self.roof_n, self.roof_top_m, self.altitudes = roof_n, roof_top_m, []
+
+    def _scan(self, dt):
+        t = self.telemetry
+        due = self.clock.now >= self.next_scan_s and not t.on_ground
+        super()._scan(dt)
+        if not due:
+            return
+        n, up = t.north_m + OFFSET.north_m, -t.down_m
+        over = self.roof_n[0] <= n <= self.roof_n[1]
+        if over:
+            self.altitudes.append(up)
+        self.queue.append(SimpleNamespace(height_m=up - (self.roof_top_m if over else 0.0), min_range_m=0.2,
+                                          max_range_m=40.0, received_s=self.clock.now))
+
+
+@pytest.mark.parametrize("keep_off", [True, False])
+def test_a_roof_the_rangefinder_reads_closer_below_than_kept_is_flown_over_higher(keep_off):
+    """A 9 m roof 30 m long the map lacks under the route at 10 m (the margin is 3 m): the horizontal sensor misses it;
+    the downward rangefinder reads 1 m. The route lifts until it reads 80 % of the margin (2.4 m), and comes
+    back down past it; without the lift the vehicle passes 1 m over it."""
+    clock = FakeClock()
+    v = _RoofVehicle(clock, STALE, (-15.0, 15.0), ALT - 1.0,
+                     start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    mission = _mission(v, clock, _obstacles(), calls=[])
+    if not keep_off:
+        mission.keep_off = mission.sensing.keep_off = None
+    result = mission.run()
+    assert result.completed and not result.replans and result.landing_error_m <= 0.5
+    over = np.array(v.altitudes) - (ALT - 1.0)
+    if keep_off:
+        assert mission.keep_off.highest_m == pytest.approx(1.4, abs=0.1)
+        assert over[-1] >= 0.8 * SAFETY - 0.2  # climbing at 1.5 m/s from where it read the roof, at 5 m/s
+        assert mission.keep_off.lift_m < 0.1  # back down past it
+    else:
+        assert over.max() == pytest.approx(1.0, abs=0.1)
 
 def _route(*points):
     pts = np.array(points, float)

@@ -37,7 +37,7 @@ import numpy as np
 
 from skyroute.frames import Geodetic, LocalNED
 
-from . import follower, preflight
+from . import follower, keepoff, preflight
 from .drag import DragEstimate
 from .errors import (
     ArmingFailed,
@@ -53,6 +53,7 @@ from .errors import (
     PlanningFailed,
     VehicleDisarmedInFlight,
 )
+from .keepoff import KeepOff
 from .landing import LandingMixin
 from .path import RoomFn, SmoothPath, leg_headings, path_length_m, smooth_path
 from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, ReturnLineFn, SurfaceFn, Vehicle
@@ -236,7 +237,11 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.drag, self._drag_at, self._drag_told = DragEstimate(), math.nan, False
         self.poll_s, self.track_interval_s = poll_s, track_interval_s
         self.clock, self.sleep = clock, sleep
-        self.sensing = Sensing(vehicle, obstacles, clock, position_fix)
+        # what the sensor reads closer than 80 % of the margin is kept off by shifting the route (.keepoff): a
+        # route through the map keeps >= 86 % (its corners' arcs use some of the margin's room)
+        self.keep_off = None if obstacles is None else KeepOff(0.8 * replan_margin_m, max_shift_m=replan_margin_m)
+        self._keep_off_said = False
+        self.sensing = Sensing(vehicle, obstacles, clock, position_fix, keep_off=self.keep_off)
         self.replan_errors, self.replan_margin_m, self.max_replans = tuple(replan_errors), replan_margin_m, max_replans
         self.look_again_s = float(look_again_s)
         self.state = MissionState.MANUAL
@@ -275,6 +280,46 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         cn, ce = self.sensing.correction_ne
         return LocalNED(t.north_m + self._offset.north_m + cn, t.east_m + self._offset.east_m + ce,
                         t.down_m + self._offset.down_m)
+
+    def _flown_position(self) -> LocalNED:
+        """The map position less the keep-off shift and lift (:mod:`.keepoff`): where the vehicle is relative to
+        the route it follows, which is the route moved by that much."""
+        return self._unshifted(self._map_position())
+
+    def _unshifted(self, p: LocalNED) -> LocalNED:
+        k = self.keep_off
+        if k is None or not (k.shift_ne.any() or k.lift_m):
+            return p
+        return LocalNED(p.north_m - float(k.shift_ne[0]), p.east_m - float(k.shift_ne[1]), p.down_m + k.lift_m)
+
+    def _keep_off_update(self, path: SmoothPath, q: LocalNED, t, now: float, rate: float, dt_s: float) -> None:
+        """Shift the route away from what the sensor reads closer than ``keep_off.keep_m`` (see :mod:`.keepoff`);
+        ``q`` is the vehicle relative to the route shifted as it is."""
+        if self.keep_off is None or not self.sensing.active:
+            return
+        speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
+        at = self._progress_s + np.concatenate([[0.0], keepoff.ahead_distances_m(speed)])
+        points = np.array([path.point_at(s_m)[0] for s_m in at])
+        before = float(np.hypot(*self.keep_off.shift_ne))
+        u = self.keep_off.update((t.north_m, t.east_m), points[:, :2] - (q.north_m, q.east_m), now_s=now,
+                                 rate=rate, dt_s=dt_s)
+        lifted = self.keep_off.lift_m
+        lift = self.keep_off.update_lift(q.altitude_m - points[0, 2], now_s=now, rate=rate, dt_s=dt_s)
+        if lift >= 1.0 > lifted:
+            self._say(f"the rangefinder reads something less than {self.keep_off.keep_m:.1f} m below: the route "
+                      f"lifted {lift:.1f} m over it")
+        after = float(np.hypot(*u))
+        if int(after) > int(before):
+            near = self.keep_off.nearest()
+            log.info("keep-off: route shifted (%+.1f N, %+.1f E) m at map (%.1f N, %.1f E), %.1f m/s; nearest "
+                     "reading %.1f m at %.0f deg", u[0], u[1], q.north_m + u[0], q.east_m + u[1], speed, *near)
+        if after >= 1.0 and not self._keep_off_said:
+            self._keep_off_said = True
+            self._say(f"the sensor reads something closer than {self.keep_off.keep_m:.1f} m where the map "
+                      f"and the position estimate have room: keeping off it, the route shifted {after:.1f} m")
+        elif after < 0.5 <= before and self._keep_off_said:
+            self._keep_off_said = False
+            log.info("keep-off: the route is back within 0.5 m of where it was planned")
 
     def _to_local(self, north_m: float, east_m: float, altitude_m: float) -> LocalNED:
         """The autopilot's local position for a map point: what it must be told to put the vehicle there (with
@@ -361,6 +406,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self._say(f"the autopilot's local frame moved by {float(np.linalg.norm(delta)):.1f} m (an estimator reset "
                   "or a new origin): re-tied to the map")
         self._offset = LocalNED(*(float(v) for v in offset))
+        if self.keep_off is not None:
+            self.keep_off.forget()
         shift = getattr(self.vehicle, "shift_setpoint", None)
         if shift is not None:
             shift(*(-float(v) for v in delta))
@@ -395,6 +442,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         r = self.result
         r.replans = list(self.sensing.records)
         self.sensing.log_summary()
+        if self.keep_off is not None and (self.keep_off.largest_m > 0 or self.keep_off.highest_m > 0):
+            log.info("keep-off: the route was shifted at most %.1f m away from readings closer than %.1f m and "
+                     "lifted at most %.1f m", self.keep_off.largest_m, self.keep_off.keep_m, self.keep_off.highest_m)
         r.track = np.array(self._track, float).reshape(-1, 4)
         if len(r.track):
             r.flown_length_m = path_length_m(r.track[:, 1:])
@@ -677,6 +727,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.result.completed = True
 
     def _takeoff(self, altitude_m: float) -> None:
+        if self.keep_off is not None:
+            self.keep_off.reset()
         here = self._map_position()
         self._start_altitude_m = here.altitude_m
         self._takeoff_s, self._takeoff_autopilot_s = self.clock(), self._autopilot_time_s()
@@ -771,10 +823,12 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self._near_goal_since = math.nan
         sent_at = -math.inf
         sent = follower.SentCommands()
+        shifted_at = ff_at
         while True:
             p = self._map_position()
-            self._progress_s = path.project((p.north_m, p.east_m, p.altitude_m), self._progress_s)
-            while i < last and self._progress_s >= path.waypoint_s_m[i] - 1e-6 and self._on_altitude(path, p):
+            q = self._unshifted(p)  # relative to the route as shifted to keep off what reads close
+            self._progress_s = path.project((q.north_m, q.east_m, q.altitude_m), self._progress_s)
+            while i < last and self._progress_s >= path.waypoint_s_m[i] - 1e-6 and self._on_altitude(path, q):
                 self._reached(i, last, path, p)
                 i += 1
                 deadline, start_s = self._waypoint_deadline(waypoints[i], waypoints[i - 1])
@@ -798,11 +852,13 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             velocity = (t.local_v_north_mps, t.local_v_east_mps, -t.local_v_down_mps)
             rate = self._autopilot_rate()
             now = self.clock()
+            self._keep_off_update(path, q, t, now, rate, rate * (now - shifted_at))
+            shifted_at, q = now, self._unshifted(p)
             # the link's round trip is flown on the setpoints already sent (a Smith predictor); the poll is ahead
             round_trip_s = float(getattr(self.vehicle, "round_trip_s", 0.0) or 0.0)
             sent.drop_older(now - round_trip_s - self.poll_s)
             predicted, predicted_v = follower.predict_over_link(
-                (p.north_m, p.east_m, p.altitude_m), velocity, sent.commands, now_s=now, rate=rate,
+                (q.north_m, q.east_m, q.altitude_m), velocity, sent.commands, now_s=now, rate=rate,
                 down_s=0.5 * rate * round_trip_s, up_s=0.5 * rate * round_trip_s,
                 response_s=max(self.brake_lag_s, self.velocity_lag_s), accel_mps2=s.accel_mps2)
             delay_s = rate * self.poll_s
@@ -820,8 +876,12 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             sent.add(now, sp.velocity)
             position = sp.position
             if sp.velocity is None and i == last:  # holding over the goal: take out the autopilot's steady offset
-                position = self._trim(waypoints[last], p, t, rate * (now - trim_at))
+                position = self._trim(waypoints[last], q, t, rate * (now - trim_at))
             trim_at = now
+            if self.keep_off is not None:
+                position = np.array(position, float)
+                position[:2] += self.keep_off.shift_ne
+                position[2] += self.keep_off.lift_m
             target = self._to_local(*position)
             velocity_ned = None if sp.velocity is None else (float(sp.velocity[0]), float(sp.velocity[1]),
                                                              float(-sp.velocity[2]))
@@ -930,8 +990,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
 
     def _at_goal(self, wp: np.ndarray) -> bool:
         """Over the goal: within ``goal_tolerance_m`` and slower than ``stop_speed_mps``; or settled, within 1.5 x
-        the tolerance for ``settle_s`` (position noise, e.g. PX4's, keeps some vehicles out of the strict box)."""
-        p = self._map_position()
+        the tolerance for ``settle_s`` (position noise, e.g. PX4's, keeps some vehicles out of the strict box).
+        A keep-off shift (:mod:`.keepoff`) moves the goal with the route: something reads too close to it."""
+        p = self._flown_position()
         t = self.vehicle.telemetry
         horizontal = math.hypot(wp[0] - p.north_m, wp[1] - p.east_m)
         speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)

@@ -32,6 +32,8 @@ from typing import Protocol
 
 import numpy as np
 
+from .keepoff import KeepOff
+
 log = logging.getLogger(__name__)
 
 #: PX4's velocity response (s, measured on SITL braking from 9 m/s): the braking rule was measured with it.
@@ -218,12 +220,16 @@ class Sensing:
         local position is matched to the map's buildings first, and every stamped reading is placed at its
         position corrected by :attr:`correction_ne` (the mission flies with that correction too), with the fix's
         bound for how far off that may still be. None: placed at the estimate as it is.
+    keep_off : KeepOff or None
+        Takes every horizontal scan fed to the layer, for the mission's sideways shift away from what reads too
+        close (:mod:`.keepoff`).
     """
 
     vehicle: object
     obstacles: ObstacleMap | None
     clock: Callable[[], float]
     fix: PositionFix | None = None
+    keep_off: KeepOff | None = None
     scans: int = 0
     heights: int = 0
     low_scans: int = 0
@@ -272,6 +278,8 @@ class Sensing:
                         and -(down + offset_down_m) < min_altitude_m:
                     self.low_scans += 1
                     continue
+                if self.keep_off is not None:
+                    self.keep_off.observe(r)
                 at = getattr(r, "local_ne", None)
                 bearings = np.asarray(r.bearings_rad, float)
                 pos_err = float(getattr(r, "position_error_m", 0.0))
@@ -296,6 +304,8 @@ class Sensing:
                 continue
             flush()
             self.heights += 1
+            if self.keep_off is not None:
+                self.keep_off.observe_height(r)
         flush()
         return True
 

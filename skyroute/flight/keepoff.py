@@ -36,8 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: A reading counts this long (autopilot seconds): a few of the sensor's 10 Hz cycles, long enough for
-#: ArduPilot's one-sector-per-message stream to give every sector, short against the estimate's drift.
+#: A reading counts this long (autopilot seconds): a few of the sensor's 10 Hz cycles, short against the
+#: estimate's drift and the vehicle's motion (its own motion since is taken out, the face's extent is not).
 WINDOW_S = 0.5
 #: A roof lifts the route once this many rangefinder readings in a row read it.
 HEIGHT_VOTES = 3
@@ -59,7 +59,7 @@ NARROW_HALF_WIDTH_RAD = math.radians(3.0)
 
 @dataclass
 class KeepOff:
-    """The sideways shift that keeps the vehicle ``keep_m`` (m) from everything the sensor reads.
+    """The sideways shift and the lift that keep the vehicle ``keep_m`` (m) from everything the sensors read.
 
     Parameters
     ----------
@@ -167,6 +167,10 @@ class KeepOff:
         self.largest_m = max(self.largest_m, min(norm, self.max_shift_m))
         return shift
 
+    @property
+    def idle(self) -> bool:
+        """Nothing read, nothing shifted: an update would change nothing."""
+        return not (self._points or self._heights or self.shift_ne.any() or self.lift_m)
 
     def _keep_clear(self, want: np.ndarray, pts: np.ndarray, local_ne: np.ndarray, route: np.ndarray) -> np.ndarray:
         """The change of shift nearest ``want`` that keeps ``route`` (K, 2, from the vehicle) ``keep_m`` off the
@@ -187,6 +191,8 @@ class KeepOff:
             unit = away[near] / dist[near][:, None]
             room = dist[near] - np.broadcast_to(keep[None, :], dist.shape)[near] - unit @ y
             y = project_onto_half_planes(want, -unit, room)
+            if np.array_equal(y, want):
+                break  # nothing in the way: facing the answer changes nothing
         return y
 
 

@@ -295,7 +295,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
     def _keep_off_update(self, path: SmoothPath, q: LocalNED, t, now: float, rate: float, dt_s: float) -> None:
         """Shift the route away from what the sensor reads closer than ``keep_off.keep_m`` (see :mod:`.keepoff`);
         ``q`` is the vehicle relative to the route shifted as it is."""
-        if self.keep_off is None or not self.sensing.active:
+        if self.keep_off is None or self.keep_off.idle:
             return
         speed = math.hypot(t.local_v_north_mps, t.local_v_east_mps)
         at = self._progress_s + np.concatenate([[0.0], keepoff.ahead_distances_m(speed)])

@@ -53,7 +53,6 @@ from .errors import (
     PlanningFailed,
     VehicleDisarmedInFlight,
 )
-from .keepoff import KeepOff
 from .landing import LandingMixin
 from .path import RoomFn, SmoothPath, leg_headings, path_length_m, smooth_path
 from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, ReturnLineFn, SurfaceFn, Vehicle
@@ -239,7 +238,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.clock, self.sleep = clock, sleep
         # what the sensor reads closer than 80 % of the margin is kept off by shifting the route (.keepoff): a
         # route through the map keeps >= 86 % (its corners' arcs use some of the margin's room)
-        self.keep_off = None if obstacles is None else KeepOff(0.8 * replan_margin_m, max_shift_m=replan_margin_m)
+        self.keep_off = None if obstacles is None else keepoff.KeepOff(0.8 * replan_margin_m,
+                                                                        max_shift_m=replan_margin_m)
         self._keep_off_said = False
         self.sensing = Sensing(vehicle, obstacles, clock, position_fix, keep_off=self.keep_off)
         self.replan_errors, self.replan_margin_m, self.max_replans = tuple(replan_errors), replan_margin_m, max_replans

@@ -25,9 +25,9 @@ STREET = np.array([[0.0, 20.0, 10.0, 100.0, 10.0, 10.0], [0.0, -20.0, 10.0, 100.
 DEAD_END = np.vstack([STREET, [[25.0, 0.0, 10.0, 10.0, 10.0, 10.0]]])
 
 
-def _scan(boxes: np.ndarray, north: float, east: float, range_m: float = 30.0) -> np.ndarray:
+def _scan(boxes: np.ndarray, north: float, east: float, range_m: float = 30.0, plane_m: float = ALT) -> np.ndarray:
     reach = range_m + np.hypot(boxes[:, 3], boxes[:, 4])
-    cross = ((boxes[:, 2] - boxes[:, 5] <= ALT) & (boxes[:, 2] + boxes[:, 5] >= ALT)
+    cross = ((boxes[:, 2] - boxes[:, 5] <= plane_m) & (boxes[:, 2] + boxes[:, 5] >= plane_m)
              & (np.hypot(boxes[:, 0] - north, boxes[:, 1] - east) <= reach))
     lo, hi = boxes[cross, :2] - boxes[cross, 3:5], boxes[cross, :2] + boxes[cross, 3:5]
     return sector_minima(lo, hi, north, east, 72, 0.0, range_m)
@@ -78,6 +78,30 @@ def test_a_scan_placed_off_is_matched_back_onto_the_map(bundled):
     assert matched >= 100
     errors = np.array(errors)
     assert np.median(errors) < 0.1 and np.mean(errors < 0.5) > 0.95
+
+
+def test_roofs_at_the_flight_altitude_under_the_sensor_do_not_pull_a_scan_placed_right(bundled):
+    """The sim's sensor sits 0.3 m above the vehicle (its sphere's centre), over the bundled map's roofs of exactly
+    the flight altitude: readings of the walls beyond them pass over them. A scan placed where it was taken is
+    matched where it is, wherever that is (before: 2.3 % of the directions off by more than 0.25 m, up to 0.9 m;
+    a hovering vehicle at (97.5, -193.5) was 'corrected' 0.4 m east with nothing wrong with its estimate)."""
+    surface = MapSurface(bundled, ALT)
+    here = (97.5, -193.5)
+    m = match_scan(surface, *here, BEARINGS, HALF, _scan(bundled, *here, plane_m=ALT + 0.3), 30.0, search_m=2.0)
+    assert np.hypot(*m.offset_ne) < 0.1
+    grid, n0, e0 = create_grid(bundled, ALT, 5.0)[:3]
+    free = np.argwhere(~grid)
+    rng = np.random.default_rng(5)
+    offsets = []
+    for _ in range(150):
+        cell = free[rng.integers(len(free))]
+        truth = (cell[0] + n0 + 0.5, cell[1] + e0 + 0.5)
+        m = match_scan(surface, *truth, BEARINGS, HALF, _scan(bundled, *truth, plane_m=ALT + 0.3), 30.0,
+                       search_m=2.0)
+        if m is not None:
+            weights, axes = np.linalg.eigh(m.information)
+            offsets += [abs(float(m.offset_ne @ axes[:, k])) for k in (0, 1) if weights[k] > 0]
+    assert len(offsets) > 150 and max(offsets) < 0.25
 
 
 def test_along_a_straight_street_only_the_crossing_direction_is_constrained():

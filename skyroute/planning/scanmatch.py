@@ -45,6 +45,9 @@ ARC_STEP_RAD = math.radians(1.5)
 #: Single-sector readings (ArduPilot's DISTANCE_SENSOR) are gathered this long (s) and matched together: a few of
 #: its 10 Hz cycles, short against the estimate's drift.
 GATHER_S = 0.25
+#: A box whose top may be under the sensor and that cuts this far (m) into a reading's arc was passed over by
+#: the reading (:meth:`MapSurface.arc_distance`).
+PASSED_OVER_M = 0.3
 #: A match needs this many readings on the map's faces.
 MIN_INLIERS = 10
 #: A direction is constrained by a scan when at least this many readings' faces face it (the eigenvalues of the
@@ -75,16 +78,21 @@ class MapSurface:
         The sensor's plane (m above the map's ground).
     below_m : float
         How far below the plane a box's top may be.
+    above_m : float
+        A box whose top is less than this far above the plane may be under the sensor (the vehicle flies that
+        much high at times, and the sensor sits above the vehicle's reference point): it is *uncertain*, its faces
+        count where a reading lands on them, never where a reading passes over it (:meth:`arc_distance`).
     bucket_m : float
         Side of the square buckets that index the boxes (m).
     """
 
-    def __init__(self, obstacles: np.ndarray, altitude_m: float, *, below_m: float = 1.0,
+    def __init__(self, obstacles: np.ndarray, altitude_m: float, *, below_m: float = 1.0, above_m: float = 1.0,
                  bucket_m: float = 16.0) -> None:
         obs = np.asarray(obstacles, float).reshape(-1, 6)
         keep = (obs[:, 2] + obs[:, 5] >= altitude_m - below_m) & (obs[:, 2] - obs[:, 5] <= altitude_m)
         self.centres = obs[keep, :2].copy()
         self.halves = obs[keep, 3:5].copy()
+        self.certain = obs[keep, 2] + obs[keep, 5] >= altitude_m + above_m
         self.bucket_m = float(bucket_m)
         self._buckets: dict[tuple[int, int], list[int]] = {}
         lo = np.floor((self.centres - self.halves) / self.bucket_m).astype(int)
@@ -133,6 +141,26 @@ class MapSurface:
         grad = np.where((norm > 1e-9)[..., None], grad, inner) * sign
         return best, grad
 
+    def arc_distance(self, arcs_ne: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per reading, the least signed distance (m) along its arc (``(K, S, 2)``: S samples of each of K
+        readings' arcs, map north and east m) to the faces of ``boxes``, its gradient (``(K, 2)``) and the sample
+        it is at (``(K,)``). A box whose top may be under the sensor (not :attr:`certain`) that cuts into an arc
+        by more than :data:`PASSED_OVER_M` was passed over by that reading, not missed by it: the reading is
+        measured against the certain boxes alone. Without that, the walls read beyond a row of roofs 5 m high
+        (the flight altitude; the sensor sits above it) were pulled towards the roofs, and a hovering vehicle's
+        correction settled 0.4 m off with nothing wrong with its estimate (the bundled map's (97, -193))."""
+        sd, grad = self.signed_distance(arcs_ne, boxes)  # (K, S), (K, S, 2)
+        k = np.argmin(sd, axis=1)
+        r = sd[np.arange(len(sd)), k]
+        passed = r < -PASSED_OVER_M
+        certain = boxes[self.certain[boxes]] if len(boxes) else boxes
+        if passed.any() and len(certain) < len(boxes):
+            sd_c, grad_c = self.signed_distance(arcs_ne[passed], certain)
+            sd[passed], grad[passed] = sd_c, grad_c
+            k = np.argmin(sd, axis=1)
+            r = sd[np.arange(len(sd)), k]
+        return r, grad[np.arange(len(sd)), k], k
+
 
 @dataclass(frozen=True)
 class Match:
@@ -150,15 +178,13 @@ def _residuals(surface: MapSurface, boxes: np.ndarray, north_m: float, east_m: f
                angles: np.ndarray, shift: np.ndarray, turn_rad: float):
     """Per reading, with the scan moved by ``shift`` and turned by ``turn_rad`` about the sensor: the least signed
     distance along its arc (0 when the arc touches a face and nothing in the sector is nearer, negative when a face
-    cuts into it), that sample's gradient (``(K, 2)``) and the residual's rate of change with the turn (m/rad)."""
+    cuts into it; :meth:`MapSurface.arc_distance`), that sample's gradient (``(K, 2)``) and the residual's rate of
+    change with the turn (m/rad)."""
     a = angles + turn_rad
     pts = np.stack([north_m + shift[0] + dist[:, None] * np.cos(a), east_m + shift[1] + dist[:, None] * np.sin(a)],
                    axis=-1)  # north_m, east_m: scalars, or (K, 1) for readings taken at several places
-    sd, grad = surface.signed_distance(pts, boxes)  # (K, S), (K, S, 2)
-    k = np.argmin(sd, axis=1)[:, None]
-    r = np.take_along_axis(sd, k, axis=1)[:, 0]
-    g = np.take_along_axis(grad, k[..., None], axis=1)[:, 0, :]
-    ak = np.take_along_axis(a, k, axis=1)[:, 0]
+    r, g, k = surface.arc_distance(pts, boxes)
+    ak = a[np.arange(len(a)), k]
     turn = dist * (g[:, 1] * np.cos(ak) - g[:, 0] * np.sin(ak))
     return r, g, turn
 
@@ -219,7 +245,8 @@ def match_scan(surface: MapSurface, north_m: float | np.ndarray, east_m: float |
         a = angles[:, ::2]  # the search reads each arc at its ends and centre only
         coarse = np.stack([north_m + shift[0] + d[:, None] * np.cos(a), east_m + shift[1] + d[:, None] * np.sin(a)],
                           axis=-1)
-        sd = surface.signed_distance(coarse[None] + grid[:, None, None, :], boxes)[0].min(axis=2)
+        arcs = coarse[None] + grid[:, None, None, :]  # (G, K, S, 2)
+        sd = surface.arc_distance(arcs.reshape(-1, *arcs.shape[2:]), boxes)[0].reshape(len(grid), -1)
         shift = shift + grid[int(np.argmin(np.minimum(np.square(sd), inlier_m ** 2).sum(axis=1)))]
     prior = np.diag([0.0, 0.0, 1.0 / max(turn_sigma_rad, 1e-6) ** 2])
     for _ in range(iterations):

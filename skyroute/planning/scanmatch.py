@@ -149,17 +149,16 @@ class MapSurface:
         measured against the certain boxes alone. Without that, the walls read beyond a row of roofs 5 m high
         (the flight altitude; the sensor sits above it) were pulled towards the roofs, and a hovering vehicle's
         correction settled 0.4 m off with nothing wrong with its estimate (the bundled map's (97, -193))."""
-        sd, grad = self.signed_distance(arcs_ne, boxes)  # (K, S), (K, S, 2)
+        boxes = np.asarray(boxes, int)
+        certain = self.certain[boxes]
+        sd, grad = self.signed_distance(arcs_ne, boxes[certain])  # (K, S), (K, S, 2)
+        if not certain.all():
+            sd_u, grad_u = self.signed_distance(arcs_ne, boxes[~certain])
+            landed_on = (sd_u.min(axis=1) >= -PASSED_OVER_M)[:, None] & (sd_u < sd)
+            sd, grad = np.where(landed_on, sd_u, sd), np.where(landed_on[..., None], grad_u, grad)
+        rows = np.arange(len(sd))
         k = np.argmin(sd, axis=1)
-        r = sd[np.arange(len(sd)), k]
-        passed = r < -PASSED_OVER_M
-        certain = boxes[self.certain[boxes]] if len(boxes) else boxes
-        if passed.any() and len(certain) < len(boxes):
-            sd_c, grad_c = self.signed_distance(arcs_ne[passed], certain)
-            sd[passed], grad[passed] = sd_c, grad_c
-            k = np.argmin(sd, axis=1)
-            r = sd[np.arange(len(sd)), k]
-        return r, grad[np.arange(len(sd)), k], k
+        return sd[rows, k], grad[rows, k], k
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,8 @@ and a fresh client process: once with no fault (the baseline) and once with the 
 (latencies and the outage in wall-clock time, as the client meets them: the sim gets them times its speed-up, so
 at speed-up 5 the vehicle meets 200 ms as a second each way). Two more mixes, outside the default rotation
 (``--mixes``): ``latency100``, ``sensor_noise_dropout`` (0.3 m range noise, 20 % of the sectors lost), and
-``gps1`` / ``gps2`` (the position estimate off the truth by a random walk of 1 or 2 m deviation, 10 s long).
+``gps1`` / ``gps2`` (the position estimate off the truth by a Gauss-Markov drift of 1 or 2 m deviation and 10 s
+correlation: harsher than the sim's default 60 s).
 With ``--walls N`` each mission is flown in a changed city, N tall walls across the route the map gives it
 (``skyroute.cityedit``; the sim's truth, the client keeps the map), baseline and fault flight alike.
 
@@ -66,10 +67,10 @@ MIXES = {
     # not in the default rotation (--mixes): they matter most where the sensor finds what the map lacks (--walls)
     "latency100": ["--latency", "100"],
     "sensor_noise_dropout": ["--sensor-noise", "0.3", "--sensor-dropout", "20"],
-    # the position estimate wanders off the truth (a 10 s random walk of this many metres' deviation), and the
+    # the position estimate wanders off the truth (a drift of this many metres' deviation, 10 s correlation), the
     # vehicle flies the estimate: only the scans, matched against the map, tell the client how far off it is
-    "gps1": ["--gps-noise", "1"],
-    "gps2": ["--gps-noise", "2"],
+    "gps1": ["--gps-noise", "1", "--gps-correlation", "10"],
+    "gps2": ["--gps-noise", "2", "--gps-correlation", "10"],
 }
 DEFAULT_MIXES = ["loss10", "latency200", "outage3", "loss5_latency100_wind"]
 

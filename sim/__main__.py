@@ -153,6 +153,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--gps-noise", type=_ranged(0, 1000), default=0.0,
                    help="position-estimate error standard deviation (m): reported, and flown (the vehicle "
                         "is off its commands by it); collisions use the truth")
+    g.add_argument("--gps-correlation", type=_ranged(1, 3600), default=60.0, metavar="S",
+                   help="the position-estimate error's correlation time (s): a Gauss-Markov drift, PX4 SITL's "
+                        "GPS model by default; shorter is harsher")
     g.add_argument("--seed", type=int, default=0, help="seed for wind, GPS noise and packet loss")
     g.add_argument("--physics-dt", type=_ranged(0, 0.1, low_open=True), default=0.02,
                    help="fixed physics step (simulated s)")
@@ -211,7 +214,8 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         map_path=args.map, host=args.host, port=args.port, speedup=args.speedup, start=args.start,
         report_path=args.report, tlog_path=args.tlog, autopilot=args.autopilot, strict=args.strict,
         origin=args.origin, radius_m=args.radius, wind_m_s=args.wind, gust_m_s=args.gust,
-        gps_noise_m=args.gps_noise, seed=args.seed, physics_dt_s=args.physics_dt, faults=faults,
+        gps_noise_m=args.gps_noise, gps_correlation_s=args.gps_correlation, seed=args.seed,
+        physics_dt_s=args.physics_dt, faults=faults,
         boot=args.boot, params=dict(args.param), signing_key=args.signing_key, scale_timeouts=args.scale_timeouts,
         sensor=SensorConfig(enabled=not args.no_sensor, range_m=args.sensor_range, rate_hz=args.sensor_rate,
                             noise_m=args.sensor_noise, dropout_pct=args.sensor_dropout),

@@ -42,9 +42,8 @@ from .world import CityMap
 log = logging.getLogger(__name__)
 M = mavlink
 NAN = math.nan
-#: ``--gps-noise``: the position estimate's error drifts with this correlation time (s) ...
-GPS_CORRELATION_S = 10.0
-#: ... and the estimator smooths it over this long (s): a real EKF's position does not jump between its updates.
+#: ``--gps-noise``: the estimator smooths the drift (``--gps-correlation``) over this long (s): a real EKF's
+#: position does not jump between its updates.
 GPS_SMOOTHING_S = 2.0
 #: PX4 modes that prevent arming: the mode PX4 returns to after a disarm is never one of them.
 _PX4_PREVENTS_ARMING = {"LAND", "RTL"}
@@ -459,12 +458,13 @@ class Autopilot(CommandHandlers, TaskControl):
         )
 
     def _drift_gps(self, dt_s: float) -> None:
-        """Move the estimate's error on by ``dt_s``: a first-order Gauss-Markov drift (``GPS_CORRELATION_S``), seen
+        """Move the estimate's error on by ``dt_s``: a first-order Gauss-Markov drift (``gps_correlation_s``), seen
         through the estimator's smoothing (a first-order lag of ``GPS_SMOOTHING_S``, the drift's spread scaled so
         the error's own is ``--gps-noise``). Unsmoothed, the error jumped ~0.13 m per 20 ms step at 2 m: a hovering
         vehicle's reported position shook by 0.6 m, which no EKF fusing an IMU reports."""
-        k = dt_s / GPS_CORRELATION_S
-        spread = self.cfg.gps_noise_m * math.sqrt((GPS_CORRELATION_S + GPS_SMOOTHING_S) / GPS_CORRELATION_S)
+        tau = self.cfg.gps_correlation_s
+        k = dt_s / tau
+        spread = self.cfg.gps_noise_m * math.sqrt((tau + GPS_SMOOTHING_S) / tau)
         for i in (0, 1):
             self.gps_drift[i] += -k * self.gps_drift[i] + spread * math.sqrt(2 * k) * self.rng.gauss(0, 1)
         self.gps_noise[:2] += (dt_s / GPS_SMOOTHING_S) * (self.gps_drift - self.gps_noise[:2])

@@ -59,10 +59,13 @@ class SimConfig:
     gust_m_s : float
         Standard deviation of wind gusts (m/s), per horizontal axis.
     gps_noise_m : float
-        Standard deviation of the position estimate's error (m), a Gauss-Markov drift with 10 s correlation,
-        smoothed over 2 s as an estimator fusing an IMU smooths it (``sim.autopilot._drift_gps``): the
+        Standard deviation of the position estimate's error (m), a Gauss-Markov drift with ``gps_correlation_s``
+        correlation, smoothed over 2 s as an estimator fusing an IMU smooths it (``sim.autopilot._drift_gps``): the
         reported position carries it, and the autopilot flies its estimate, so the vehicle itself is off every
         commanded position by its horizontal part (collisions use the truth).
+    gps_correlation_s : float
+        The drift's correlation time (s): 60 by default, PX4 SITL's GPS model (Gazebo's gps plugin); shorter is
+        harsher (10 s moves a landing vehicle's estimate by the whole spread over its 7 s descent).
     seed : int
         Seed for wind, GPS noise and packet loss.
     physics_dt_s : float
@@ -99,6 +102,7 @@ class SimConfig:
     wind_m_s: tuple[float, float] = (0.0, 0.0)
     gust_m_s: float = 0.0
     gps_noise_m: float = 0.0
+    gps_correlation_s: float = 60.0
     seed: int = 0
     physics_dt_s: float = 0.02
     faults: FaultConfig = field(default_factory=FaultConfig)
@@ -140,6 +144,8 @@ class SimConfig:
             raise ValueError(f"gust must be in [0, 100] m/s, not {self.gust_m_s}")
         if not 0 <= self.gps_noise_m <= 1000:
             raise ValueError(f"gps noise must be in [0, 1000] m, not {self.gps_noise_m}")
+        if not 1 <= self.gps_correlation_s <= 3600:
+            raise ValueError(f"gps correlation must be in [1, 3600] s, not {self.gps_correlation_s}")
         resolve_boot(self.boot)
         ParamTable(self.autopilot, self.params)  # unknown names and non-finite values
         if self.signing_key is not None:

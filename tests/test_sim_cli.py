@@ -39,8 +39,8 @@ def test_help_documents_every_option():
             assert flag in text, flag
         assert action.help, action.option_strings
     for needed in ("--map", "--host", "--port", "--speedup", "--start", "--report", "--tlog", "--autopilot",
-                   "--strict", "--origin", "--radius", "--wind", "--gps-noise", "--seed", "--packet-loss",
-                   "--latency", "--outage", "--deny-arm", "--deny-command"):
+                   "--strict", "--origin", "--radius", "--wind", "--gps-noise", "--gps-correlation", "--seed",
+                   "--packet-loss", "--latency", "--outage", "--deny-arm", "--deny-command"):
         assert needed in text
     assert "(default: 5760)" in text and "(default: 127.0.0.1)" in text
 
@@ -84,6 +84,7 @@ GOOD_HEAD = "lat0 37.792480, lon0 -122.397450\nposX,posY,posZ,halfSizeX,halfSize
         (["--deny-arm", "-2"], "--deny-arm: must be >= 0"),
         (["--deny-arm", "1.5"], "--deny-arm: expected a whole number"),
         (["--gps-noise", "-1"], "--gps-noise: must be in [0, 1000]"),
+        (["--gps-correlation", "0.5"], "--gps-correlation: must be in [1, 3600]"),
         (["--gust", "-1"], "--gust: must be in [0, 100]"),
         (["--radius", "-0.1"], "--radius: must be in [0, 100]"),
         (["--wind", "inf,0"], "--wind: expected a finite number"),

@@ -154,6 +154,73 @@ def test_observed_obstacles_are_inflated_by_the_maps_euclidean_rule():
     assert np.array_equal(live.grid, live.base | expect)
 
 
+def test_a_narrower_margin_reinflates_every_observed_obstacle_by_the_same_rule():
+    live, _ = _live(confirm_hits=1)
+    bearings = np.radians(np.arange(0.0, 360.0, 5.0))
+    d = np.full(72, np.inf)
+    d[[0, 9, 40]] = 10.0, 12.0, 8.0
+    live.add_scan(-50.5, 0.5, bearings, math.radians(2.5), d, 30.0)
+    full = live.grid.copy()
+    hit_cells = np.argwhere(live.hits)
+    n, m = live.shape
+    ii, jj = np.mgrid[0:n, 0:m]
+    assert live.set_margin(2.0)
+    expect = live.hits.copy()
+    for i, j in hit_cells:
+        gap_n = np.maximum(np.maximum(i - (ii + 1), ii - (i + 1)), 0)
+        gap_e = np.maximum(np.maximum(j - (jj + 1), jj - (j + 1)), 0)
+        expect |= np.hypot(gap_n, gap_e) < 2.0
+    assert np.array_equal(live.inflated, expect)
+    assert np.array_equal(live.grid, live.base | expect)
+    assert live.set_margin(SAFETY) and np.array_equal(live.grid, full)
+    assert not live.set_margin(SAFETY)  # unchanged
+    for bad in (SAFETY + 0.5, -1.0):
+        with pytest.raises(ValueError, match="margin"):
+            live.set_margin(bad)
+
+
+#: Two blocks reaching the map's north and south edges: the street between them (east -12..12) is the only way.
+CLOSED_STREET = np.array([[0.0, 56.0, 15.0, 100.0, 44.0, 15.0], [0.0, -56.0, 15.0, 100.0, 44.0, 15.0],
+                          [-99.5, -99.5, 0.5, 0.5, 0.5, 0.5], [99.5, 99.5, 0.5, 0.5, 0.5, 0.5]])
+
+
+def _wall_leaving(gap_m: float) -> np.ndarray:
+    """A wall across the street at north 20..22 from its west side, ``gap_m`` short of its east side."""
+    west, east = -12.0, 12.0 - gap_m
+    return np.array([[21.0, (west + east) / 2, 15.0, 1.0, (east - west) / 2, 15.0]])
+
+
+def test_a_gap_only_the_whole_cell_margin_closes_is_flown_at_a_narrower_margin():
+    # An 11.5 m gap between the wall's end and the block: open at the full 5 m margin on the true boxes; the hit
+    # cells at the wall's end (each counted whole, the arc past the end) close it at 5 m and 4.5 m, not at 4 m.
+    wall = _wall_leaving(11.5)
+    truth = np.vstack([CLOSED_STREET, wall])
+    GridMap.build(truth, ALT, 5.0).plan((0.5, 0.5), (60.5, 0.5))  # the truth has a way at the full margin
+    live, _ = _live(CLOSED_STREET, safety_m=5.0)
+    _fly_north(live, truth, 72, 12.0)
+    with pytest.raises(GoalUnreachable):
+        Replanner(live, (60.5, 0.5), ALT, min_margin_m=5.0).replan((11.5, 0.5))  # narrowing turned off
+    assert live.margin_m == 5.0
+    route = Replanner(live, (60.5, 0.5), ALT).replan((11.5, 0.5))
+    assert route.margin_m == 4.0 and live.margin_m == 4.0  # kept from now on
+    assert tuple(route.waypoints[-1, :2]) == (60.5, 0.5)
+    samples = np.vstack([a + np.linspace(0.0, 1.0, 200)[:, None] * (b - a)
+                         for a, b in zip(route.waypoints[:-1, :2], route.waypoints[1:, :2])])
+    assert _distance_to_boxes(samples, wall).min() >= 4.0
+    assert _distance_to_boxes(samples, CLOSED_STREET[:2]).min() >= 5.0  # the map's own buildings keep it whole
+
+
+def test_a_gap_closed_at_the_narrowest_margin_leaves_the_margin_as_it_was():
+    truth = np.vstack([CLOSED_STREET, _wall_leaving(9.0)])
+    live, _ = _live(CLOSED_STREET, safety_m=5.0)
+    _fly_north(live, truth, 72, 12.0)
+    grid = live.grid.copy()
+    with pytest.raises(GoalUnreachable) as error:
+        Replanner(live, (60.5, 0.5), ALT).replan((11.5, 0.5))
+    assert live.margin_m == 5.0 and np.array_equal(live.grid, grid)
+    assert error.value.fallback_ne is not None and error.value.fallback_ne[0] < 20.0  # south of the wall
+
+
 def test_one_stray_reading_is_not_an_obstacle_and_hits_seen_free_again_are_dropped():
     live, _ = _live(confirm_hits=2, free_to_clear=3)
     bearings = np.radians(np.arange(0.0, 360.0, 5.0))

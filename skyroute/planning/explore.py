@@ -278,8 +278,10 @@ class Explorer:
         from skyroute.planning.replan import Replanner
 
         self.area = area
+        # The margin round observed obstacles stays whole: a frontier out of reach is common here and only means
+        # another one is chosen, not a reason to fly closer to what was seen (Replanner.replan's narrowing).
         self.replanner = Replanner(area.live, area.start_ne, area.altitude_m, look_ahead_m=look_ahead_m,
-                                   method=method)
+                                   method=method, min_margin_m=area.live.safety_m)
 
     # the sensing step's ObstacleMap (skyroute.flight.replanning)
     def add_scan(self, north_m: float, east_m: float, bearings_rad, half_width_rad: float, distances_m,

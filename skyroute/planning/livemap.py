@@ -152,6 +152,7 @@ class LiveMap:
             raise ValueError(f"footprint {self.footprint.shape} and base grid {self.base.shape} differ in shape")
         self.north_offset, self.east_offset = int(north_offset), int(east_offset)
         self.safety_m = float(safety_m)
+        self.margin_m = self.safety_m  # round observed obstacles: the safety margin unless narrowed (set_margin)
         self.confirm_hits, self.free_to_clear = int(confirm_hits), int(free_to_clear)
         self.explain_tolerance_m, self.arc_step_m = float(explain_tolerance_m), float(arc_step_m)
         self._map_distance = None if self.footprint is None else _distance_to(self.footprint)
@@ -464,6 +465,24 @@ class LiveMap:
             cells = cells[~dropped | ~others[arc]]
         return np.unique(cells, axis=0) if len(cells) else np.empty((0, 2), np.int64)
 
+    def set_margin(self, margin_m: float) -> bool:
+        """Inflate the observed obstacles by ``margin_m`` (m, at most the safety margin) from now on, every one
+        already seen included; True if the planning grid changed. The map's own buildings keep the safety margin.
+
+        A hit cell counts whole, and an arc seen obliquely lies up to a metre in front of the face it saw: the
+        inflated layer overstates an observed obstacle by up to that much, and beside a wall's end it can close a
+        gap the true wall leaves open at the full margin. :meth:`~.replan.Replanner.replan` narrows the margin
+        (down to a floor) only when the goal is out of reach without it."""
+        margin_m = float(margin_m)
+        if not 0.0 <= margin_m <= self.safety_m:
+            raise ValueError(f"the margin round observed obstacles must lie in [0, {self.safety_m:g}] m, "
+                             f"not {margin_m:g}")
+        if margin_m == self.margin_m:
+            return False
+        self.margin_m = margin_m
+        cells = np.argwhere(self.hits)
+        return bool(len(cells)) and self._reinflate(cells)
+
     def _reinflate(self, changed_cells: np.ndarray) -> bool:
         """Recompute the inflated layer round changed hit cells; True if the planning grid changed."""
         reach = int(math.ceil(self.safety_m)) + 2
@@ -478,7 +497,7 @@ class LiveMap:
         lo_n = (cells[:, 0] + self.north_offset).astype(np.float64)
         lo_e = (cells[:, 1] + self.east_offset).astype(np.float64)
         window = kernels.rasterise(lo_n, lo_n + 1.0, lo_e, lo_e + 1.0, float(self.north_offset + i0),
-                                   float(self.east_offset + j0), self.safety_m, i1 - i0, j1 - j0)
+                                   float(self.east_offset + j0), self.margin_m, i1 - i0, j1 - j0)
         window |= self.hits[i0:i1, j0:j1]
         sub = (slice(i0, i1), slice(j0, j1))
         self.inflated[sub] = window

@@ -103,6 +103,36 @@ def _udp_free(port: int) -> bool:
     return True
 
 
+def _reserve(kind: str, instances, ports_free) -> tuple[int, object] | tuple[None, None]:
+    """The first instance whose ports are free (``ports_free(n)``) and whose lock no other process holds:
+    ``(instance, lock file)``, the lock held until the file is closed (or the process dies), else ``(None, None)``.
+
+    Two test workers starting an autopilot at once both saw instance 1's ports free before either bound them, and
+    the second ArduCopter exited with 'bind failed on port 5770' (a CI run's error at setup); the lock makes the
+    choice one process's at a time."""
+    import fcntl
+
+    for n in instances:
+        if not ports_free(n):
+            continue
+        lock = open(Path(tempfile.gettempdir()) / f"skyroute-{kind}-instance-{n}.lock", "w")  # noqa: SIM115
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            lock.close()
+            continue
+        return n, lock
+    return None, None
+
+
+def _tail(log: Path, lines: int = 5) -> str:
+    """The last lines of an autopilot's log, for an error raised before stop() removes the log's directory."""
+    try:
+        return " | ".join(log.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return f"(no log at {log})"
+
+
 def _stop_group(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
     if proc.poll() is not None:
         return
@@ -127,8 +157,8 @@ class ArduCopterSitl:
     def __init__(self, home: tuple[float, float, float], *, speedup: float = 5.0, wipe: bool = True,
                  instances=range(1, 40), extra: tuple[str, ...] = ()):
         self.home, self.speedup, self.wipe, self.extra = home, speedup, wipe, extra
-        self.instance = next((n for n in instances
-                              if all(_tcp_free(5760 + 10 * n + k) for k in (0, 2, 3))), None)
+        self.instance, self._reservation = _reserve(
+            "arducopter", instances, lambda n: all(_tcp_free(5760 + 10 * n + k) for k in (0, 2, 3)))
         if self.instance is None:
             raise RuntimeError("no free ArduCopter SITL instance (ports 5760+10N..5763+10N all busy)")
         self.dir = Path(tempfile.mkdtemp(prefix="skyroute-arducopter-"))
@@ -155,7 +185,7 @@ class ArduCopterSitl:
         port = 5762 + 10 * self.instance
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
-                raise RuntimeError(f"arducopter exited ({self.proc.returncode}); see {self.dir / 'arducopter.log'}")
+                raise RuntimeError(f"arducopter exited ({self.proc.returncode}): {_tail(self.dir / 'arducopter.log')}")
             with socket.socket() as s:
                 s.settimeout(0.2)
                 if s.connect_ex(("127.0.0.1", port)) == 0:
@@ -168,9 +198,14 @@ class ArduCopterSitl:
             _stop_group(self.proc)
             self.log.close()
         shutil.rmtree(self.dir, ignore_errors=True)
+        self._reservation.close()
 
     def __enter__(self) -> ArduCopterSitl:
-        return self.start()
+        try:
+            return self.start()
+        except BaseException:
+            self.stop()
+            raise
 
     def __exit__(self, *exc) -> None:
         self.stop()
@@ -186,9 +221,9 @@ class Px4Sitl:
 
     def __init__(self, home: tuple[float, float, float], *, fast_align: bool = False, instances=range(1, 10)):
         self.home, self.fast_align = home, fast_align
-        self.instance = next((n for n in instances if all(_udp_free(p + n) for p in (14540, 14580, 18570, 14280,
-                                                                                      13030, 19450))
-                              and not Path(f"/tmp/px4_lock-{n}").exists()), None)
+        self.instance, self._reservation = _reserve(
+            "px4", instances, lambda n: all(_udp_free(p + n) for p in (14540, 14580, 18570, 14280, 13030, 19450))
+            and not Path(f"/tmp/px4_lock-{n}").exists())
         if self.instance is None:
             raise RuntimeError("no free PX4 SITL instance (1..9)")
         self.dir = Path(tempfile.mkdtemp(prefix="skyroute-px4-"))
@@ -222,7 +257,7 @@ class Px4Sitl:
                                      stdin=subprocess.DEVNULL, start_new_session=True)
         time.sleep(1.0)
         if self.proc.poll() is not None:
-            raise RuntimeError(f"px4 exited ({self.proc.returncode}); see {self.dir / 'px4.log'}")
+            raise RuntimeError(f"px4 exited ({self.proc.returncode}): {_tail(self.dir / 'px4.log')}")
         return self
 
     def stop(self) -> None:
@@ -230,9 +265,14 @@ class Px4Sitl:
             _stop_group(self.proc)
             self.log.close()
         shutil.rmtree(self.dir, ignore_errors=True)
+        self._reservation.close()
 
     def __enter__(self) -> Px4Sitl:
-        return self.start()
+        try:
+            return self.start()
+        except BaseException:
+            self.stop()
+            raise
 
     def __exit__(self, *exc) -> None:
         self.stop()

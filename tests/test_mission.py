@@ -715,7 +715,10 @@ class FakeVehicle:
         self.mode = "hold"
 
     def release_control(self):
-        self._maybe_fail("release_control")
+        if self.link_ok:
+            self._maybe_fail("release_control")
+        else:  # as the link's: the stream stops here, whatever the link
+            self.calls.append("release_control")
         self.setpoint = None
 
     def _step(self, dt):
@@ -1281,9 +1284,13 @@ def outage(clock, v, start_s, duration_s, *, then_mode="hold"):
 def test_a_3_s_outage_mid_flight_is_ridden_out_and_the_mission_completes(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     outage(clock, v, 8.0, 3.0)
+    streamed = []
+    clock.at(10.5, lambda: streamed.append(v.setpoint))
     planned, lines = [], []
     result = make_mission(v, clock, straight_plan(planned), progress=lines.append).run()
     assert result.completed and result.final_state is S.MANUAL and result.recoveries == 1
+    # the last setpoint, reckoned from telemetry the outage froze, was not re-sent for the link's return
+    assert streamed == [None]
     events = [h[1] for h in result.history]
     assert events[events.index(E.LINK_LOST):events.index(E.LINK_LOST) + 2] == [E.LINK_LOST, E.RESUMED]
     assert v.calls.count("take_control") == 1 and len(planned) == 1  # it held on the path: no replan

@@ -74,6 +74,7 @@ class RecoveryMixin:
         self.result.recoveries += 1
         log.warning("%s in flight; recovering", why)
         if link_lost:
+            self._drop_stale_setpoint()
             self._wait_for_link(why)
         else:
             self._say(why)
@@ -97,6 +98,18 @@ class RecoveryMixin:
         self._fire(E.RESUMED)
         self._say("control taken back: flying on from where the vehicle is")
         raise _Resumed()
+
+    def _drop_stale_setpoint(self) -> None:
+        """The link lost: stop re-sending the last setpoint, so the autopilot's own behaviour has the vehicle until
+        control is taken back from where it is (ArduCopter brakes GUID_TIMEOUT after its last target, PX4 takes its
+        offboard-loss failsafe). That setpoint was reckoned from telemetry the outage had already frozen: re-sent
+        the moment the link came back, it pulled an ArduPilot vehicle 8 m back to where it was last seen, and the
+        turn onto the route from there passed a building's corner 2.7 m off (a fault campaign's 3 s outage, a 5 m
+        margin)."""
+        try:
+            self.vehicle.release_control()
+        except self.vehicle_errors as exc:  # the link is down: what the link cannot do now, it need not
+            log.warning("stopping the setpoint stream failed: %s", exc)
 
     def _hand_over_unless_ours(self, kind: str, link_lost: bool) -> None:
         """Raise ControlTakenOver (after releasing the vehicle) unless the mode the vehicle is in is ours to take

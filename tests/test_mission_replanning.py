@@ -16,11 +16,11 @@ from skyroute.cityedit import enclose_goal
 from skyroute.flight import mission as m
 from skyroute.flight.mission import MissionEvent as E
 from skyroute.flight.mission import MissionState as S
-from skyroute.flight.replanning import speed_to_stop_within_mps, turn_lead_in_m
+from skyroute.flight.replanning import GOAL_AGAIN, speed_to_stop_within_mps, turn_lead_in_m
 from skyroute.planning.cspace import create_grid
 from skyroute.planning.errors import PlanningError
 from skyroute.planning.grid import GridMap
-from skyroute.planning.livemap import LiveMap
+from skyroute.planning.livemap import LiveMap, ScanUpdate
 from skyroute.planning.pruning import line_of_sight
 from skyroute.planning.replan import GoalUnreachable, Replanner
 
@@ -750,3 +750,52 @@ def test_without_a_reroute_the_phantom_wall_sends_the_vehicle_round_a_block():
     track = result.track[:, 1:3]
     passed = track[np.abs(track[:, 0] - WALL[0, 0]) < 1.0]
     assert np.abs(passed[:, 1]).min() > 10.0
+
+
+class _CutOffUntilFallback(Replanner):
+    """The goal is 'cut off' until the vehicle has given it up (twice refused: the replan and the look again) and
+    flown towards the fallback point 25 m back down the street; ``reopen_after_m``: once that far from where it
+    gave up, one scan reports observed obstacles dropped as noise (as views on the way there see a wide sector's
+    arc free), else the goal is asked for again only at the fallback point."""
+
+    def __init__(self, *args, reopen_after_m=math.inf, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.refusals, self.gave_up_at, self.reopen_after_m, self.reopened_at = 0, None, reopen_after_m, None
+        self.fallback_ne = None
+
+    def replan(self, position_ne):
+        if self.goal_ne == GOAL and self.refusals < 2:
+            self.refusals += 1
+            self.gave_up_at = tuple(position_ne[:2])
+            self.fallback_ne = (float(position_ne[0]) - 25.0, 0.5)
+            raise GoalUnreachable(GOAL, self.fallback_ne)
+        return super().replan(position_ne)
+
+    def add_scan(self, north_m, east_m, *args, **kwargs):
+        update = super().add_scan(north_m, east_m, *args, **kwargs)
+        if (self.gave_up_at is not None and self.reopened_at is None
+                and math.dist((north_m, east_m), self.gave_up_at) > self.reopen_after_m):
+            self.reopened_at = (north_m, east_m)
+            return ScanUpdate(0, 1, update.explained, update.unexplained, True)
+        return update
+
+
+@pytest.mark.parametrize("reopen_after_m", [math.inf, 8.0], ids=["at-the-fallback-point", "on-the-way-there"])
+def test_a_goal_given_up_is_flown_to_once_it_is_in_reach_again(reopen_after_m):
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    obstacles = _CutOffUntilFallback(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT,
+                                     reopen_after_m=reopen_after_m)
+    result = _mission(v, clock, obstacles, calls=[]).run()
+    assert result.completed and result.landing_error_m < 0.5  # at the goal, not the fallback point: exit 0
+    events = [e for _, e, _ in result.history]
+    assert obstacles.refusals == 2 and E.GOAL_UNREACHABLE in events
+    again = [r for r in result.replans if r.reason == GOAL_AGAIN]
+    assert len(again) == 1 and "the goal in reach again" in again[0].describe()
+    where = (again[0].north_m, again[0].east_m)
+    if math.isinf(reopen_after_m):  # asked again once there
+        assert math.dist(where, obstacles.fallback_ne) < 2.0
+    else:  # asked again at the first scan that dropped something, well short of the fallback point
+        assert math.dist(where, obstacles.reopened_at) < 3.0 and math.dist(where, obstacles.fallback_ne) > 8.0
+    assert _track_clearance(result.track, WALL) >= SAFETY - 1.0

@@ -824,6 +824,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         sent_at = -math.inf
         sent = follower.SentCommands()
         shifted_at = ff_at
+        tried_goal = False
         while True:
             p = self._map_position()
             q = self._unshifted(p)  # relative to the route as shifted to keep off what reads close
@@ -833,6 +834,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                 i += 1
                 deadline, start_s = self._waypoint_deadline(waypoints[i], waypoints[i - 1])
             if i == last and self._at_goal(waypoints[last]):
+                if self._target_ne is not None and not tried_goal:  # at the fallback point: the goal once more
+                    tried_goal = True
+                    self._goal_again(p)
                 self._reached(i, last, path, p)
                 self._fire(E.GOAL_REACHED)
                 return

@@ -100,6 +100,10 @@ class PositionFix(Protocol):
     def describe(self) -> str: ...
 
 
+#: A replan record's reason when the goal, given up, is in reach again (:meth:`ReplanningMixin._goal_again`).
+GOAL_AGAIN = "goal in reach again"
+
+
 @dataclass(frozen=True)
 class ReplanRecord:
     """One replan: ``time_s`` (our clock), where (map ``north_m``, ``east_m``), ``reason`` and ``along_m`` of the
@@ -126,6 +130,10 @@ class ReplanRecord:
             return (f"a way closed by obstacles since dropped as noise, at ({self.north_m:.1f} N, {self.east_m:.1f} "
                     f"E): {'braked, then ' if self.braked else ''}rerouted: {len(self.waypoints)} waypoints, "
                     f"searched in {self.plan_ms:.1f} ms")
+        if self.reason == GOAL_AGAIN:
+            return (f"the goal in reach again at ({self.north_m:.1f} N, {self.east_m:.1f} E): "
+                    f"{'braked, then ' if self.braked else ''}flying on to it: {len(self.waypoints)} waypoints, "
+                    f"planned in {self.plan_ms:.1f} ms")
         what = (f"{self.outcome}: {len(self.waypoints)} waypoints" if self.waypoints is not None else self.outcome)
         refined = (f"; then refined under the stale-map prior in {self.refine_ms:.1f} ms"
                    if math.isfinite(self.refine_ms) else "")
@@ -756,8 +764,11 @@ class ReplanningMixin:
         if not sensing.reopened or self._refining is not None or self._refine_due or self._pending is not None:
             return  # looked at once the replan or refinement under way is done
         sensing.reopened = False
+        if self._target_ne is not None:
+            self._goal_again(p)
+            return
         job_of = getattr(sensing.obstacles, "reroute_job", None)
-        if job_of is None or self._target_ne is not None:
+        if job_of is None:
             return
         here = (p.north_m, p.east_m)
         rest = np.vstack([here, np.asarray(waypoints, float)[i:, :2]])
@@ -766,6 +777,43 @@ class ReplanningMixin:
             return
         self._reroute_from_m = float(np.sum(np.hypot(*np.diff(rest, axis=0).T)))
         self._run_on_worker(job)
+
+    def _goal_again(self, p) -> None:
+        """Flying to the fallback point (the goal given up), when the layer has dropped observed obstacles as noise
+        or the vehicle is there: ask for the goal once more, and when it is in reach, fly on to it (raises
+        :class:`_Rerouted`, braking first when the vehicle cannot turn onto the new route in time). What closed the
+        way may have been the reading of a wide sector (ArduPilot's 45 degrees: the nearest point is anywhere on a
+        24 m arc at 30 m) that views from the way to the fallback point see free; held-out missions flown against
+        the ArduPilot personality gave up goals they could reach that way."""
+        here = (p.north_m, p.east_m)
+        try:
+            route = self.sensing.obstacles.replan(here)
+        except self.replan_errors as exc:
+            log.info("flying to the fallback point: the goal is still out of reach (%s)", exc)
+            return
+        waypoints = np.asarray(route.waypoints, float)
+        t = self.vehicle.telemetry
+        velocity = np.array([t.local_v_north_mps, t.local_v_east_mps], float)
+        braked = False
+        if (self._lead_in_m(velocity, here, waypoints) > 0.0
+                or not self._slows_in_time(float(np.hypot(*velocity)), here, waypoints)):
+            self._brake()
+            braked = True
+            p = self._map_position()
+            here = (p.north_m, p.east_m)
+            try:
+                route = self.sensing.obstacles.replan(here)
+            except self.replan_errors as exc:
+                log.info("flying to the fallback point: the goal went out of reach again (%s)", exc)
+                return
+            waypoints = np.asarray(route.waypoints, float)
+        self._target_ne = self._unreachable = self._lead_in_ne = None
+        waypoints = self._flight_waypoints(waypoints, p)
+        self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, GOAL_AGAIN, math.nan,
+                                         float(route.plan_ms), math.nan, braked, waypoints))
+        self._say(f"the goal is in reach after all: {'braked and ' if braked else ''}flying on to it, "
+                  f"{float(getattr(route, 'length_m', math.nan)):.0f} m")
+        raise _Rerouted(waypoints)
 
     def _take_rerouted(self, p, route, from_m: float) -> None:
         """A reopened way (:meth:`_reroute_if_reopened`) still clear from here becomes the route (raises

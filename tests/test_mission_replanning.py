@@ -468,6 +468,7 @@ def test_a_goal_still_cut_off_after_looking_again_is_given_up(caplog):
         mission.run()
     looked = caplog.text.index("holding to look again for 3 s")
     assert looked < caplog.text.index("holding; landing at the nearest reachable safe point")
+    assert "fallback point (the goal out of reach) reached at" in caplog.text and "goal reached at" not in caplog.text
 
 
 def _without_prior():

@@ -958,7 +958,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                       f"{math.hypot(t.local_v_north_mps, t.local_v_east_mps):.1f} m/s")
             self._fire(E.WAYPOINT_REACHED)
         else:
-            self._say(f"goal reached at ({p.north_m:.1f} N, {p.east_m:.1f} E); landing")
+            what = "goal" if self._target_ne is None else "fallback point (the goal out of reach)"
+            self._say(f"{what} reached at ({p.north_m:.1f} N, {p.east_m:.1f} E); landing")
 
     def _autopilot_rate(self) -> float:
         """Autopilot seconds per second of our clock since the takeoff command: a sped-up simulator's speedup,

@@ -786,10 +786,8 @@ class ReplanningMixin:
         24 m arc at 30 m) that views from the way to the fallback point see free; held-out missions flown against
         the ArduPilot personality gave up goals they could reach that way."""
         here = (p.north_m, p.east_m)
-        try:
-            route = self.sensing.obstacles.replan(here)
-        except self.replan_errors as exc:
-            log.info("flying to the fallback point: the goal is still out of reach (%s)", exc)
+        route = self._goal_route(here)
+        if route is None:
             return
         waypoints = np.asarray(route.waypoints, float)
         t = self.vehicle.telemetry
@@ -801,10 +799,8 @@ class ReplanningMixin:
             braked = True
             p = self._map_position()
             here = (p.north_m, p.east_m)
-            try:
-                route = self.sensing.obstacles.replan(here)
-            except self.replan_errors as exc:
-                log.info("flying to the fallback point: the goal went out of reach again (%s)", exc)
+            route = self._goal_route(here)  # from where it stopped
+            if route is None:
                 return
             waypoints = np.asarray(route.waypoints, float)
         self._target_ne = self._unreachable = self._lead_in_ne = None
@@ -814,6 +810,14 @@ class ReplanningMixin:
         self._say(f"the goal is in reach after all: {'braked and ' if braked else ''}flying on to it, "
                   f"{float(getattr(route, 'length_m', math.nan)):.0f} m")
         raise _Rerouted(waypoints)
+
+    def _goal_route(self, here):
+        """A route from map ``here`` to the goal, or None (logged) while it is out of reach."""
+        try:
+            return self.sensing.obstacles.replan(here)
+        except self.replan_errors as exc:
+            log.info("flying to the fallback point: the goal is still out of reach (%s)", exc)
+            return None
 
     def _take_rerouted(self, p, route, from_m: float) -> None:
         """A reopened way (:meth:`_reroute_if_reopened`) still clear from here becomes the route (raises

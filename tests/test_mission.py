@@ -1284,13 +1284,23 @@ def outage(clock, v, start_s, duration_s, *, then_mode="hold"):
 def test_a_3_s_outage_mid_flight_is_ridden_out_and_the_mission_completes(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     outage(clock, v, 8.0, 3.0)
-    streamed = []
-    clock.at(10.5, lambda: streamed.append(v.setpoint))
+    seen = {}
+
+    def look(when):
+        t = v.telemetry
+        seen[when] = (v.setpoint, (t.north_m, t.east_m, t.down_m))
+
+    clock.at(10.5, lambda: look("outage"))
+    clock.at(11.25, lambda: look("back"))
     planned, lines = [], []
     result = make_mission(v, clock, straight_plan(planned), progress=lines.append).run()
     assert result.completed and result.final_state is S.MANUAL and result.recoveries == 1
-    # the last setpoint, reckoned from telemetry the outage froze, was not re-sent for the link's return
-    assert streamed == [None]
+    # the last setpoint, reckoned from telemetry the outage froze, was re-sent through it (PX4 returns to OFFBOARD
+    # the moment setpoints come back) and replaced by a hold where the vehicle is once the link was back
+    stale, stopped_at = seen["outage"]
+    held, at = seen["back"]
+    assert math.dist(stale[:2], stopped_at[:2]) > 0.5
+    assert math.dist(held[:2], at[:2]) < 0.3 and held[2] == pytest.approx(at[2], abs=0.3)
     events = [h[1] for h in result.history]
     assert events[events.index(E.LINK_LOST):events.index(E.LINK_LOST) + 2] == [E.LINK_LOST, E.RESUMED]
     assert v.calls.count("take_control") == 1 and len(planned) == 1  # it held on the path: no replan

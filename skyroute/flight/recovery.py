@@ -62,6 +62,8 @@ class RecoveryMixin:
             self.sleep(self.poll_s)
         self._say("the link is back")
         back_s = self.clock()
+        if self.state is S.RECOVERING:
+            self._hold_where_seen(back_s)
         self.sleep(max(self.poll_s, 0.3))  # let a position in after the outage
         # the mode and the armed state come with heartbeats (1 Hz): judge them from one sent after the outage
         while (getattr(self.vehicle.telemetry, "last_heartbeat_s", math.inf) < back_s
@@ -74,7 +76,6 @@ class RecoveryMixin:
         self.result.recoveries += 1
         log.warning("%s in flight; recovering", why)
         if link_lost:
-            self._drop_stale_setpoint()
             self._wait_for_link(why)
         else:
             self._say(why)
@@ -99,17 +100,26 @@ class RecoveryMixin:
         self._say("control taken back: flying on from where the vehicle is")
         raise _Resumed()
 
-    def _drop_stale_setpoint(self) -> None:
-        """The link lost: stop re-sending the last setpoint, so the autopilot's own behaviour has the vehicle until
-        control is taken back from where it is (ArduCopter brakes GUID_TIMEOUT after its last target, PX4 takes its
-        offboard-loss failsafe). That setpoint was reckoned from telemetry the outage had already frozen: re-sent
-        the moment the link came back, it pulled an ArduPilot vehicle 8 m back to where it was last seen, and the
-        turn onto the route from there passed a building's corner 2.7 m off (a fault campaign's 3 s outage, a 5 m
-        margin)."""
+    def _hold_where_seen(self, back_s: float) -> None:
+        """The link back (at ``back_s``, our clock): as soon as a position from after the outage is in, re-send a
+        hold there, at the flight altitude, in place of the last setpoint. That setpoint was reckoned from telemetry
+        the outage had already frozen, and the link re-sends it: it pulled an ArduPilot vehicle 8 m back to where
+        it was last seen until the mission flew on, and the turn onto the route from there passed a building's
+        corner at 2.7 m (a fault campaign's 3 s outage, a 5 m margin). The stream itself goes on through the
+        outage: PX4 returns to OFFBOARD the moment setpoints come back."""
+        vehicle = self.vehicle
+        if not getattr(vehicle, "streaming", True) or not vehicle.telemetry.armed:
+            return
+        deadline = back_s + 1.0
+        while getattr(vehicle.telemetry, "local_rx_s", math.inf) < back_s and self.clock() < deadline:
+            self.sleep(0.02)
+        p = self._map_position()
+        target = self._to_local(p.north_m, p.east_m, max(p.altitude_m, self.altitude_m))
+        heading = float(getattr(vehicle.telemetry, "heading_rad", 0.0) or 0.0)
         try:
-            self.vehicle.release_control()
-        except self.vehicle_errors as exc:  # the link is down: what the link cannot do now, it need not
-            log.warning("stopping the setpoint stream failed: %s", exc)
+            vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading, velocity_ned=None)
+        except self.vehicle_errors as exc:
+            log.warning("holding where the vehicle is after the outage failed: %s", exc)
 
     def _hand_over_unless_ours(self, kind: str, link_lost: bool) -> None:
         """Raise ControlTakenOver (after releasing the vehicle) unless the mode the vehicle is in is ours to take

@@ -513,3 +513,25 @@ def test_a_cell_seen_free_more_often_than_hit_settles_as_free_instead_of_flicker
             states.append(bool(live.hits[15, 20]))
     assert any(states[:9])  # confirmed at first, on the first hits
     assert not any(states[-30:])  # and free for good once the free readings outweigh the hits
+
+
+def test_under_wide_sectors_the_viewpoint_is_the_near_edge_of_what_closes_the_way():
+    corridor = np.array([[0.0, 56.0, 15.0, 100.0, 44.0, 15.0], [0.0, -56.0, 15.0, 100.0, 44.0, 15.0]])
+    truth = np.vstack([corridor, WALL])
+    start, goal = (0.5, 0.5), (60.5, 0.5)
+    fine, _ = _live(corridor)
+    _fly_north(fine, truth, 72, 0.0)
+    assert Replanner(fine, goal, ALT).viewpoint(start) is None  # PX4's sectors: a closure they show is one
+    wide, _ = _live(corridor)
+    _fly_north(wide, truth, 8, 0.0)  # ArduPilot's 45 degree sectors
+    replanner = Replanner(wide, goal, ALT)
+    with pytest.raises(GoalUnreachable):
+        replanner.replan(start)
+    view = replanner.viewpoint(start)
+    assert view is not None and not wide.grid[wide.cell_of(*view)]
+    # In the street, one cell short of the margin round what was seen of the wall, north of the vehicle.
+    assert view[0] > start[0] and abs(view[1]) < 12.0
+    assert wide.grid[wide.cell_of(view[0] + 1.0, view[1])] or wide.grid[wide.cell_of(view[0] + 1.0, view[1] + 1.0)] \
+        or wide.grid[wide.cell_of(view[0] + 1.0, view[1] - 1.0)]
+    again = replanner.viewpoint(view)  # from there: the same edge (the mission needs 3 m more to go on looking)
+    assert again is None or math.dist(again, view) < 3.0

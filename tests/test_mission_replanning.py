@@ -16,7 +16,7 @@ from skyroute.cityedit import enclose_goal
 from skyroute.flight import mission as m
 from skyroute.flight.mission import MissionEvent as E
 from skyroute.flight.mission import MissionState as S
-from skyroute.flight.replanning import GOAL_AGAIN, speed_to_stop_within_mps, turn_lead_in_m
+from skyroute.flight.replanning import GOAL_AGAIN, MAX_VIEWPOINTS, speed_to_stop_within_mps, turn_lead_in_m
 from skyroute.planning.cspace import create_grid
 from skyroute.planning.errors import PlanningError
 from skyroute.planning.grid import GridMap
@@ -800,3 +800,63 @@ def test_a_goal_given_up_is_flown_to_once_it_is_in_reach_again(reopen_after_m):
     else:  # asked again at the first scan that dropped something, well short of the fallback point
         assert math.dist(where, obstacles.reopened_at) < 3.0 and math.dist(where, obstacles.fallback_ne) > 8.0
     assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
+
+
+class _ClosedUntilLookedAt(Replanner):
+    """The goal is 'cut off' (as by a wide sector's arc across the only way on) until the vehicle has been to the
+    viewpoint the layer offers (10 m back down the street from where it asks, 5 m further for each one looked from
+    already); ``never``: cut off for good."""
+
+    def __init__(self, *args, never=False, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.never, self.offered, self.looked = never, [], False
+
+    def viewpoint(self, position_ne, looked_from=()):
+        point = (float(position_ne[0]) - 10.0 - 5.0 * len(looked_from), 0.5)
+        self.offered.append(point)
+        return point
+
+    def replan(self, position_ne):
+        if self.goal_ne == GOAL:
+            if self.offered and math.dist(position_ne[:2], self.offered[-1]) < 1.5:
+                self.looked = True
+            if self.never or not self.looked:
+                raise GoalUnreachable(GOAL, (float(position_ne[0]) - 25.0, 0.5))
+        return super().replan(position_ne)
+
+
+def _closed_until_looked_at(never: bool):
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    obstacles = _ClosedUntilLookedAt(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT,
+                                     never=never)
+    return v, obstacles, _mission(v, clock, obstacles, calls=[])
+
+
+def test_a_goal_out_of_reach_is_looked_for_from_the_viewpoint_before_it_is_given_up():
+    v, obstacles, mission = _closed_until_looked_at(never=False)
+    result = mission.run()
+    assert result.completed and result.landing_error_m < 0.5  # at the goal, exit 0
+    assert len(obstacles.offered) == 1
+    looking = [r for r in result.replans if "looking from" in r.outcome]
+    assert len(looking) == 1 and np.allclose(looking[0].waypoints[-1, :2], obstacles.offered[0])
+    track = result.track[:, 1:3]
+    assert np.hypot(*(track - obstacles.offered[0]).T).min() < 1.0  # it went there
+    again = [r for r in result.replans if r.reason == GOAL_AGAIN]
+    assert len(again) == 1 and math.dist((again[0].north_m, again[0].east_m), obstacles.offered[0]) < 1.5
+    events = [e for _, e, _ in result.history]
+    assert E.GOAL_UNREACHABLE not in events
+    assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
+
+
+def test_a_goal_still_out_of_reach_from_every_viewpoint_is_given_up_at_the_fallback_point():
+    v, obstacles, mission = _closed_until_looked_at(never=True)
+    with pytest.raises(m.GoalUnreachableInFlight, match="instead of the goal") as info:
+        mission.run()
+    result = info.value.result
+    assert len(obstacles.offered) == MAX_VIEWPOINTS  # then no more: the fallback point
+    assert len([r for r in result.replans if "looking from" in r.outcome]) == MAX_VIEWPOINTS
+    events = [e for _, e, _ in result.history]
+    assert E.GOAL_UNREACHABLE in events and not result.completed
+    assert result.final_state is S.MANUAL and not v.telemetry.armed and v.telemetry.on_ground

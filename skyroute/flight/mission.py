@@ -834,6 +834,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                 i += 1
                 deadline, start_s = self._waypoint_deadline(waypoints[i], waypoints[i - 1])
             if i == last and self._at_goal(waypoints[last]):
+                if self._viewpoint_ne is not None:  # look from here; flies on to the goal, a viewpoint or a fallback
+                    self._at_viewpoint(p)
                 if self._target_ne is not None and not tried_goal:  # at the fallback point: the goal once more
                     tried_goal = True
                     self._goal_again(p)

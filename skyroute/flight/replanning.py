@@ -81,7 +81,9 @@ class ObstacleMap(Protocol):
     # kind of job asked for when ``add_scan``'s answer says it dropped observed obstacles (``cleared``) and the
     # planning grid changed (``changed``): a way they closed may be open again (``Replanner.reroute_job``); and
     # ``version``, an int that changes whenever the observed obstacles change the planning grid (the mission rounds
-    # its corners again then: an arc widened round what stood there before may not keep the margin any more).
+    # its corners again then: an arc widened round what stood there before may not keep the margin any more); and
+    # ``viewpoint(position_ne, looked_from) -> (north_m, east_m) | None``, where to look from before giving the goal
+    # up (``Replanner.viewpoint``: only under wide sectors).
 
 
 class PositionFix(Protocol):
@@ -102,6 +104,9 @@ class PositionFix(Protocol):
 
 #: A replan record's reason when the goal, given up, is in reach again (:meth:`ReplanningMixin._goal_again`).
 GOAL_AGAIN = "goal in reach again"
+#: Before giving the goal up under wide sectors, the vehicle flies to at most this many viewpoints to look at what
+#: closes the way (:meth:`ReplanningMixin._viewpoint_route`), each this far (m) from the others and from itself.
+MAX_VIEWPOINTS, VIEWPOINT_APART_M = 3, 3.0
 
 
 @dataclass(frozen=True)
@@ -433,6 +438,9 @@ class ReplanningMixin:
     _refine_pool: ThreadPoolExecutor | None = None
     _lead_in_ne: tuple[float, float] | None = None  # the replanned route starts with a straight lead-in to here
     _reroute_from_m: float = math.nan  # the rest of the route flown when a reroute was asked for (NaN: a refinement)
+    _viewpoint_ne: tuple[float, float] | None = None  # flying to this point to look before giving the goal up
+    _viewpoint_blockage: Blockage | None = None  # the blockage that sent the vehicle there
+    _looked_from: tuple[tuple[float, float], ...] = ()  # the viewpoints chosen so far
 
     @property
     def discovered_obstacles(self) -> np.ndarray:
@@ -505,7 +513,8 @@ class ReplanningMixin:
         reaction = self._reaction_s()
         stops_short = can_turn_in_time(blockage, speed, self.speeds.accel_mps2, self.replan_margin_m, reaction)
         braked = False
-        target = self._target_ne
+        viewing = self._viewpoint_ne is not None
+        target = None if viewing else self._target_ne  # a viewpoint is a way to the goal: the goal is asked for
         lead_in = self._lead_in_ne = None
         while True:
             p = self._map_position()
@@ -514,7 +523,7 @@ class ReplanningMixin:
             try:
                 route = self._route_from(here, target)
             except self.replan_errors as exc:
-                if target is not None or self.look_again_s <= 0:
+                if target is not None or viewing or self.look_again_s <= 0:
                     return self._goal_out_of_reach(exc, blockage, braked, p)
                 p = self._look_again(exc, braked)
                 braked, here = True, (p.north_m, p.east_m)
@@ -536,6 +545,8 @@ class ReplanningMixin:
             braked = True
             self._brake()  # and plan again from where it stopped
         self._lead_in_ne = lead_in
+        if viewing:  # the goal is in reach again on the way to a viewpoint
+            self._viewpoint_ne = self._target_ne = None
         waypoints = route.waypoints if lead_in is None else _after_lead_in(route.waypoints)
         waypoints = self._flight_waypoints(waypoints, p)
         self._pending = ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
@@ -691,6 +702,18 @@ class ReplanningMixin:
         if not braked:
             self._brake()
             p = self._map_position()
+        here = (p.north_m, p.east_m)
+        view = self._viewpoint_route(here, blockage)
+        if view is not None:
+            point, route = view
+            self._say(f"{exc}: flying {math.dist(point, here):.0f} m to ({point[0]:.1f} N, {point[1]:.1f} E) to "
+                      "look at what closes the way before giving it up")
+            waypoints = self._flight_waypoints(route.waypoints, p)
+            self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
+                                             float(route.plan_ms), math.nan, True, waypoints,
+                                             outcome=f"{exc}; looking from ({point[0]:.1f} N, {point[1]:.1f} E)"))
+            self._fire(E.REPLANNED)
+            return waypoints
         why = str(exc)
         self._unreachable = why
         self._say(f"{why}: holding; landing at the nearest reachable safe point")
@@ -698,7 +721,6 @@ class ReplanningMixin:
         self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
                                          math.nan, math.nan, True, None, outcome=why))
         fallback = getattr(exc, "fallback_ne", None)
-        here = (p.north_m, p.east_m)
         route = None
         if fallback is not None and math.dist(fallback, here) > 1.0:
             self._target_ne = (float(fallback[0]), float(fallback[1]))
@@ -711,6 +733,50 @@ class ReplanningMixin:
             self._target_ne = here
             return self._flight_waypoints(np.array([[p.north_m, p.east_m, self.altitude_m, 0.0]]), p)
         return self._flight_waypoints(route.waypoints, p)
+
+    def _viewpoint_route(self, here, blockage: Blockage):
+        """``(viewpoint, route there)`` for the next look before giving the goal up (the obstacle map's
+        ``viewpoint``: only under wide sectors), or None: none left (``MAX_VIEWPOINTS``), none found, none
+        ``VIEWPOINT_APART_M`` from here and from those looked from, or no route there. Sets the viewpoint as the
+        target (the vehicle asks for the goal on the way, as on the way to a fallback point, and looks again on
+        arrival: :meth:`_at_viewpoint`)."""
+        self._viewpoint_ne = None
+        find = getattr(self.sensing.obstacles, "viewpoint", None)
+        if find is None or len(self._looked_from) >= MAX_VIEWPOINTS:
+            return None
+        point = find(here, self._looked_from)
+        if point is None or any(math.dist(point, q) < VIEWPOINT_APART_M for q in (here, *self._looked_from)):
+            return None
+        try:
+            route = self.sensing.obstacles.route_to(here, point)
+        except self.replan_errors as exc:
+            log.info("no route to the viewpoint (%.1f N, %.1f E): %s", point[0], point[1], exc)
+            return None
+        self._looked_from = (*self._looked_from, point)
+        self._viewpoint_ne = self._target_ne = point
+        self._viewpoint_blockage = blockage
+        return point, route
+
+    def _at_viewpoint(self, p) -> None:
+        """At a viewpoint: stop and look (``look_again_s``), then fly on (raises :class:`_Rerouted`) to the goal if
+        it is in reach, else to the next viewpoint or the fallback point (:meth:`_goal_out_of_reach`)."""
+        from .states import MissionEvent as E
+
+        self._fire(E.PATH_BLOCKED)  # the way to the goal, closed on what had been seen from further back
+        where = f"at ({p.north_m:.1f} N, {p.east_m:.1f} E)"
+        p = self._look_again(f"the goal still out of reach {where}", braked=False)
+        here = (p.north_m, p.east_m)
+        try:
+            route = self.sensing.obstacles.replan(here)
+        except self.replan_errors as exc:
+            raise _Rerouted(self._goal_out_of_reach(exc, self._viewpoint_blockage, True, p)) from None
+        self._viewpoint_ne = self._target_ne = None
+        waypoints = self._flight_waypoints(route.waypoints, p)
+        self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, GOAL_AGAIN, math.nan,
+                                         float(route.plan_ms), math.nan, True, waypoints))
+        self._say(f"looked {where}: the goal is in reach after all, {float(route.length_m):.0f} m")
+        self._fire(E.REPLANNED)
+        raise _Rerouted(waypoints)
 
     def _setpoint_sent(self) -> None:
         """After a setpoint: the first one of a new route closes its replan record with the latency."""
@@ -803,7 +869,7 @@ class ReplanningMixin:
             if route is None:
                 return
             waypoints = np.asarray(route.waypoints, float)
-        self._target_ne = self._unreachable = self._lead_in_ne = None
+        self._target_ne = self._unreachable = self._lead_in_ne = self._viewpoint_ne = None
         waypoints = self._flight_waypoints(waypoints, p)
         self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, GOAL_AGAIN, math.nan,
                                          float(route.plan_ms), math.nan, braked, waypoints))
@@ -816,7 +882,8 @@ class ReplanningMixin:
         try:
             return self.sensing.obstacles.replan(here)
         except self.replan_errors as exc:
-            log.info("flying to the fallback point: the goal is still out of reach (%s)", exc)
+            log.info("flying to the %s: the goal is still out of reach (%s)",
+                     "fallback point" if self._viewpoint_ne is None else "viewpoint", exc)
             return None
 
     def _take_rerouted(self, p, route, from_m: float) -> None:

@@ -167,6 +167,7 @@ class LiveMap:
         self.version = 0
         self.scans = 0
         self.map_cells_seen_free = 0
+        self.wide_sectors = False  # a scan's sectors were wider than FINE_HALF_RAD (their whole arcs are marked)
 
     @classmethod
     def for_grid_map(cls, grid_map, footprint: np.ndarray | None, **kwargs) -> LiveMap:
@@ -332,6 +333,7 @@ class LiveMap:
         centres = np.asarray(bearings_rad, dtype=float) % _TWO_PI
         dist = np.asarray(distances_m, dtype=float)
         half = float(half_width_rad)
+        self.wide_sectors |= half > FINE_HALF_RAD
         p = np.array([north_m, east_m], dtype=float)
         window = self._window(north_m, east_m, max_range_m)
         i0, i1, j0, j1 = window

@@ -64,6 +64,9 @@ REOPEN_GAIN, REOPEN_GAIN_M = 0.05, 5.0
 #: overstates what was seen (:meth:`.livemap.LiveMap.set_margin`). 0.8 keeps 4 m of a 5 m margin, above issue 11's
 #: 3.5 m clearance bar; held-out seed 24's mission 1 (offline model) needed 4 m past a wall's end.
 NARROW_STEP_M, MIN_MARGIN_SHARE = 0.5, 0.8
+#: :meth:`Replanner.viewpoint`: a metre through observed obstacles or their margins costs this many metres of free
+#: street, and this many times more again within this many metres (cells) of a point already looked from.
+VIEW_CROSSING_WEIGHT, VIEW_LOOKED_WEIGHT, VIEW_LOOKED_RADIUS_M = 20.0, 10.0, 15
 #: Coarse cell (m) of the prior's distances (to the nearest observed obstacle, to the map's route).
 _SUSPECT_CELL_M = 4
 
@@ -552,6 +555,50 @@ class Replanner:
         centres = cells + (live.north_offset + 0.5, live.east_offset + 0.5)
         k = int(np.argmin(np.hypot(*(centres - self.goal_ne).T)))
         return float(centres[k, 0]), float(centres[k, 1])
+
+    def viewpoint(self, position_ne: Sequence[float],
+                  looked_from: Sequence[Sequence[float]] = ()) -> tuple[float, float] | None:
+        """Where to look from, when the goal is out of reach on the live layer, before giving it up: the last free
+        cell centre (map metres) of the cheapest way to the goal on the map's own grid on which a metre through
+        observed obstacles or their margins costs ``VIEW_CROSSING_WEIGHT`` metres (and ``VIEW_LOOKED_WEIGHT``
+        times more near a point in ``looked_from``): the edge of the thinnest observed closure between the vehicle
+        and the goal, one margin from it. None when the layer has seen only fine sectors, the map itself cuts the
+        goal off, or that edge is where the vehicle is.
+
+        Wide sectors (ArduPilot's 45 degrees) mark the whole arc at a reading's range, and an arc through free
+        street beside a wall's end, inflated, can close the only way on. Only a view from where that wedge's
+        nearest obstacle lies beyond those cells sees them free; holding where the way was found closed often has
+        none (a map building nearer in every wedge that covers them), flying up to the closure's edge often does
+        (held-out seed 14's mission 0, offline model: given up at its start before, at the goal at 1.02x the true
+        route's metres after two looks). Fine sectors (PX4's 5 degrees) place their hits well enough that a
+        closure they show is one: there this returns None and the goal is given up at once.
+        """
+        live = self.live
+        if not live.wide_sectors:
+            return None
+        start, _ = self._start_cell(position_ne)
+        goal = live.cell_of(*self.goal_ne)
+        n, m = live.shape
+        if not (0 <= start[0] < n and 0 <= start[1] < m and 0 <= goal[0] < n and 0 <= goal[1] < m):
+            return None
+        weights = np.where(live.inflated, VIEW_CROSSING_WEIGHT, 1.0)
+        if len(looked_from):
+            ii, jj = np.ogrid[0:n, 0:m]
+            for point in looked_from:
+                ci, cj = live.cell_of(float(point[0]), float(point[1]))
+                near = (ii - ci) ** 2 + (jj - cj) ** 2 <= VIEW_LOOKED_RADIUS_M**2
+                weights[near & live.inflated] *= VIEW_LOOKED_WEIGHT
+        try:
+            path = GridPlanner(live.base).plan_weighted(start, goal, weights)
+        except PlanningError:
+            return None
+        cells = path.cells
+        closed = live.grid[cells[:, 0], cells[:, 1]]
+        k = int(np.argmax(closed))
+        if not closed[k] or k == 0:
+            return None
+        i, j = cells[k - 1]
+        return float(i + live.north_offset + 0.5), float(j + live.east_offset + 0.5)
 
     def route_to(self, position_ne: Sequence[float], target_ne: Sequence[float]) -> Replan:
         """A route to another point (e.g. the fallback), like :meth:`replan`."""

@@ -535,3 +535,20 @@ def test_under_wide_sectors_the_viewpoint_is_the_near_edge_of_what_closes_the_wa
         or wide.grid[wide.cell_of(view[0] + 1.0, view[1] - 1.0)]
     again = replanner.viewpoint(view)  # from there: the same edge (the mission needs 3 m more to go on looking)
     assert again is None or math.dist(again, view) < 3.0
+
+
+def test_the_viewpoint_looks_at_the_least_certain_part_of_a_closure():
+    # A line of hits across a 60 m square at north 30: the west half hit 20 times and never seen free (a wall flown
+    # along), the east half hit twice and seen free once (a wide arc through free street). The way through the east
+    # half is longer from the west; the viewpoint is there all the same.
+    live = LiveMap(np.zeros((60, 60), bool), None, 0, 0, safety_m=2.0, confirm_hits=1)
+    live.hit_count[30, :30], live.hit_count[30, 30:], live.free_count[30, 30:] = 20, 2, 1
+    live.hits[30, :] = True
+    live._reinflate(np.argwhere(live.hits))
+    live.wide_sectors = True
+    view = Replanner(live, (55.5, 10.5), ALT).viewpoint((10.5, 10.5))
+    assert view is not None and view[1] >= 30.0 and 25.0 <= view[0] < 30.0
+    live.free_count[30, 30:] = 0
+    live.hit_count[30, 30:] = 20  # as sure as the west half: straight on
+    view = Replanner(live, (55.5, 10.5), ALT).viewpoint((10.5, 10.5))
+    assert view is not None and view[1] < 20.0

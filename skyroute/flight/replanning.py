@@ -106,7 +106,7 @@ class PositionFix(Protocol):
 GOAL_AGAIN = "goal in reach again"
 #: Before giving the goal up under wide sectors, the vehicle flies to at most this many viewpoints to look at what
 #: closes the way (:meth:`ReplanningMixin._viewpoint_route`), each this far (m) from the others and from itself.
-MAX_VIEWPOINTS, VIEWPOINT_APART_M = 3, 3.0
+MAX_VIEWPOINTS, VIEWPOINT_APART_M = 5, 3.0
 
 
 @dataclass(frozen=True)

@@ -142,9 +142,10 @@ class ReplanRecord:
         what = (f"{self.outcome}: {len(self.waypoints)} waypoints" if self.waypoints is not None else self.outcome)
         refined = (f"; then refined under the stale-map prior in {self.refine_ms:.1f} ms"
                    if math.isfinite(self.refine_ms) else "")
+        latency = (f", new setpoint {self.latency_ms:.1f} ms after the reading" if math.isfinite(self.latency_ms)
+                   else "")
         return (f"path {self.reason} {self.along_m:.1f} m ahead at ({self.north_m:.1f} N, {self.east_m:.1f} E); "
-                f"{'braked, then ' if self.braked else ''}{what}, planned in {self.plan_ms:.1f} ms, new setpoint "
-                f"{self.latency_ms:.1f} ms after the reading{refined}")
+                f"{'braked, then ' if self.braked else ''}{what}, planned in {self.plan_ms:.1f} ms{latency}{refined}")
 
 
 def braking_distance_m(speed_mps: float, decel_mps2: float, reaction_s: float = 0.3) -> float:

@@ -1,7 +1,7 @@
 """Replanning latency on SF: sensor message in -> new setpoints out, against a from-scratch plan in the same run.
 
     python bench/bench_replan.py [--map SF.csv] [--routes 12] [--walls 2] [--seed 0] [--sectors px4|ardupilot]
-                                 [--compare-prior] [--heldout 11,12,13]
+                                 [--compare-prior] [--heldout 11,12,13] [--max-viewpoints N]
 
 For each of ``--routes`` random SF missions (start and goal free at 5 m with a 5 m margin, at least 300 m apart),
 ``skyroute.cityedit`` puts ``--walls`` walls across the route the grid planner takes on the map; the client's side
@@ -22,7 +22,10 @@ p50 / p99 / max in milliseconds, and the ratio of the medians. Target: replan p9
 does once that first setpoint is out, the route refined under the stale-map prior (``Replanner.refine``), timed
 on its own row (not part of the latency: the vehicle already flies a free route). A scan that drops observed
 obstacles as noise asks, as the mission does, for a way they closed (``Replanner.reroute_job``; taken at once here:
-the model has no dynamics, the mission brakes first when a turn needs it).
+the model has no dynamics, the mission brakes first when a turn needs it). A goal out of reach is given up as the
+mission gives it up: a look again where the vehicle stopped, viewpoints under wide sectors (``--max-viewpoints``,
+0 turns them off), then the fallback point, the goal asked for again on the way (outcome "gave up" when it lands
+there).
 
 ``--compare-prior`` moves each mission a second time without the prior and prints the metres moved against the
 true map's route (the grid route in the changed city), both ways: the offline model of issue 11's airborne-time
@@ -39,6 +42,7 @@ import math
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +56,7 @@ from sim.world import CityMap as TrueCity  # noqa: E402
 from skyroute import sfmap  # noqa: E402
 from skyroute.cityedit import walls_across_route  # noqa: E402
 from skyroute.flight.path import smooth_path  # noqa: E402
+from skyroute.flight.replanning import MAX_VIEWPOINTS, VIEWPOINT_APART_M  # noqa: E402
 from skyroute.maps import read_colliders  # noqa: E402
 from skyroute.planning.cspace import create_grid  # noqa: E402
 from skyroute.planning.errors import PlanningError  # noqa: E402
@@ -61,6 +66,8 @@ from skyroute.planning.replan import Replanner  # noqa: E402
 from skyroute.vehicle.sensors import RangeScan, translate_sensor  # noqa: E402
 
 ALT_M, SAFETY_M, STEP_M, TARGET_P99_MS = 5.0, 5.0, 1.0, 20.0
+#: The mission's look again (3 s) in scans of the sensor's 10 Hz.
+LOOK_SCANS = 30
 #: Issue 11's bar on airborne time against the true map's flight; here on metres moved (a lower bound on it).
 TIME_RATIO = 1.5
 
@@ -83,9 +90,17 @@ def _random_mission(gm: GridMap, rng: np.random.Generator) -> tuple[tuple[float,
 
 
 def fly(stale: np.ndarray, truth: np.ndarray, lat0: float, lon0: float, start, goal, personality: str,
-        timings: dict, max_steps: int = 3000, prior: bool = True) -> tuple[str, float]:
+        timings: dict, max_steps: int = 3000, prior: bool = True,
+        max_viewpoints: int = MAX_VIEWPOINTS) -> tuple[str, float]:
     """Move along the path scan by scan, replanning as the client does (then refining under the stale-map prior,
-    unless ``prior`` is False); fill ``timings``; return how it ended and the metres moved."""
+    unless ``prior`` is False); fill ``timings``; return how it ended ("goal", "gave up" at the fallback point,
+    "no path", "out of steps") and the metres moved.
+
+    When the goal is out of reach the mission's give-up is followed too: a look again (``LOOK_SCANS`` scans where
+    it stopped), then up to ``max_viewpoints`` viewpoints (``Replanner.viewpoint``, under wide sectors only), each
+    looked from for ``LOOK_SCANS`` scans, then the fallback point; the goal is asked for again whenever the layer
+    drops observed obstacles as noise on the way and on arrival. ArduPilot's sectors of one sample go to the layer
+    as one scan, as the client batches them."""
     gm = GridMap.build(stale, ALT_M, SAFETY_M)
     footprint = create_grid(stale, ALT_M, 0.0)[0]
     live = LiveMap.for_grid_map(gm, footprint)
@@ -101,53 +116,120 @@ def fly(stale: np.ndarray, truth: np.ndarray, lat0: float, lon0: float, start, g
     heading = 0.0
     target = 1
     moved = 0.0
-    for step in range(max_steps):
-        sensor.sample(step * 0.1, np.array([*position, ALT_M + 0.3]), heading, np.array([*position, ALT_M]))
+    mode = "goal"  # flying to the goal, to a "viewpoint", or to the "fallback" point
+    looked: list[tuple[float, float]] = []
+    fallback = None
+
+    def sense(time_s: float) -> bool:
+        """One scan at the vehicle's position into the layer; True if it dropped observed obstacles as noise."""
+        sensor.sample(time_s, np.array([*position, ALT_M + 0.3]), heading, np.array([*position, ALT_M]))
         packets = [m.pack(encoder) for m in sensor.messages(msg_id, None)]
-        t0 = time.perf_counter()
+        nonlocal t_in
+        t_in = time.perf_counter()  # timed from here: the bytes in
         scans = []
         for data in packets:
             for msg in decoder.parse_buffer(data) or []:
-                reading = translate_sensor(msg, t0, heading)
+                reading = translate_sensor(msg, time.perf_counter(), heading)
                 if isinstance(reading, RangeScan):
                     scans.append(reading)
+        if len(scans) > 1:  # ArduPilot: one message per sector, one layer update per sample (as the client)
+            scans = [replace(scans[0], bearings_rad=np.concatenate([r.bearings_rad for r in scans]),
+                             distances_m=np.concatenate([r.distances_m for r in scans]))]
         reopened = False
         for scan in scans:
             update = live.add_scan(position[0], position[1], scan.bearings_rad, scan.half_width_rad,
                                    scan.distances_m, scan.max_range_m)
             reopened |= bool(update.cleared and update.changed)
+        return reopened
+
+    def give_up(exc: PlanningError):
+        """The next viewpoint's route, else the fallback point's: ``(waypoints, mode)``, or None."""
+        nonlocal fallback
+        if len(looked) < max_viewpoints:
+            point = replanner.viewpoint(position, looked)
+            if point is not None and all(math.dist(point, q) >= VIEWPOINT_APART_M for q in (position, *looked)):
+                try:
+                    route = replanner.route_to(position, point)
+                    looked.append(point)
+                    return route.waypoints, "viewpoint"
+                except PlanningError:
+                    pass
+        fallback = getattr(exc, "fallback_ne", None)
+        if fallback is None or math.dist(fallback, position) < 1.0:
+            return None
+        try:
+            return replanner.route_to(position, fallback).waypoints, "fallback"
+        except PlanningError:
+            return None
+
+    arrived, t_in = False, math.nan
+    for step in range(max_steps):
+        reopened = sense(step * 0.1)
+        t0 = t_in
+        if mode != "goal" and (reopened or arrived):  # the goal asked for again
+            if arrived and mode == "viewpoint":
+                for _ in range(LOOK_SCANS):
+                    sense(step * 0.1)
+            try:
+                waypoints, target, mode = replanner.replan(position).waypoints, 1, "goal"
+            except PlanningError as exc:
+                if arrived:
+                    nxt = None if mode == "fallback" else give_up(exc)
+                    if nxt is None:
+                        return "gave up", moved
+                    (waypoints, mode), target = nxt, 1
         blockage = replanner.check(position, waypoints[target:])
         if blockage is None:
             timings["check_ms"].append((time.perf_counter() - t0) * 1e3)
             job = replanner.reroute_job(position, np.vstack([position, waypoints[target:, :2]])) \
-                if reopened else None
+                if reopened and mode == "goal" else None
             better = None if job is None else job()  # the mission's reroute onto a way reopened (no dynamics)
             if better is not None:
                 waypoints, target = better.waypoints, 1
+        elif mode == "fallback":
+            try:
+                waypoints, target = replanner.route_to(position, fallback).waypoints, 1
+            except PlanningError:
+                return "gave up", moved
         else:
+            looked_again = False
             try:
                 new = replanner.replan(position)
             except PlanningError:
-                return "no path", moved
-            path = smooth_path(new.waypoints, cruise_mps=10.0)
-            setpoint, _tangent = path.point_at(0.0)
-            speed = path.speed_at(0.0)
-            timings["replan_ms"].append((time.perf_counter() - t0) * 1e3)
-            assert math.isfinite(setpoint[0]) and speed >= 0.0
-            # The peer: everything from scratch on the same observed obstacles.
-            t1 = time.perf_counter()
-            boxes = np.vstack([stale, live.hit_boxes(ALT_M, 3 * ALT_M)])
-            try:
-                GridMap.build(boxes, ALT_M, SAFETY_M).plan(tuple(position), goal, snap_start=True)
-                timings["scratch_ms"].append((time.perf_counter() - t1) * 1e3)
-            except PlanningError:  # only a narrowed margin round the observed obstacles reaches the goal
-                pass
-            if prior:  # what the mission asks once the first setpoint is out
-                t2 = time.perf_counter()
-                better = replanner.refine(position, new.waypoints)
-                timings["refine_ms"].append((time.perf_counter() - t2) * 1e3)
-                new = new if better is None else better
-            waypoints, target = new.waypoints, 1
+                looked_again = True  # not a latency: the vehicle stopped to look
+                if mode == "goal":  # look again where it stopped
+                    for _ in range(LOOK_SCANS):
+                        sense(step * 0.1)
+                try:
+                    new = replanner.replan(position)
+                except PlanningError as still:
+                    nxt = give_up(still)
+                    if nxt is None:
+                        return "no path", moved
+                    (waypoints, mode), target = nxt, 1
+                    new = None
+            if new is not None:
+                mode = "goal"
+                path = smooth_path(new.waypoints, cruise_mps=10.0)
+                setpoint, _tangent = path.point_at(0.0)
+                speed = path.speed_at(0.0)
+                if not looked_again:
+                    timings["replan_ms"].append((time.perf_counter() - t0) * 1e3)
+                assert math.isfinite(setpoint[0]) and speed >= 0.0
+                # The peer: everything from scratch on the same observed obstacles.
+                t1 = time.perf_counter()
+                boxes = np.vstack([stale, live.hit_boxes(ALT_M, 3 * ALT_M)])
+                try:
+                    GridMap.build(boxes, ALT_M, SAFETY_M).plan(tuple(position), goal, snap_start=True)
+                    timings["scratch_ms"].append((time.perf_counter() - t1) * 1e3)
+                except PlanningError:  # only a narrowed margin round the observed obstacles reaches the goal
+                    pass
+                if prior:  # what the mission asks once the first setpoint is out
+                    t2 = time.perf_counter()
+                    better = replanner.refine(position, new.waypoints)
+                    timings["refine_ms"].append((time.perf_counter() - t2) * 1e3)
+                    new = new if better is None else better
+                waypoints, target = new.waypoints, 1
         # Move 1 m along the current path.
         left = STEP_M
         while left > 0 and target < len(waypoints):
@@ -163,7 +245,8 @@ def fly(stale: np.ndarray, truth: np.ndarray, lat0: float, lon0: float, start, g
                 position = position + leg / dist * left
                 moved += left
                 left = 0.0
-        if target >= len(waypoints):
+        arrived = target >= len(waypoints)
+        if arrived and mode == "goal":
             return "goal", moved
     return "out of steps", moved
 
@@ -183,6 +266,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sectors", choices=("px4", "ardupilot"), default="px4")
     p.add_argument("--compare-prior", action="store_true",
                    help="also move each mission without the stale-map prior and compare the metres moved")
+    p.add_argument("--max-viewpoints", type=int, default=MAX_VIEWPOINTS,
+                   help="viewpoints looked from before a goal is given up (wide sectors only; 0: none)")
     p.add_argument("--heldout", default=None, metavar="SEEDS",
                    help="instead of --routes random missions: bench/heldout_replan.py's 5 missions per seed "
                         "(comma-separated), walls drawn with its seeds")
@@ -214,12 +299,13 @@ def main(argv: list[str] | None = None) -> int:
             outcomes.append(f"skipped ({exc})")
             continue
         outcome, metres = fly(stale, change.obstacles, city.lat0_deg, city.lon0_deg, start, goal, args.sectors,
-                              timings)
+                              timings, max_viewpoints=args.max_viewpoints)
         outcomes.append(outcome)
         if args.compare_prior and outcome == "goal":
             true_m = GridMap.build(change.obstacles, ALT_M, SAFETY_M).plan(start, goal, snap_start=True).length_m
             without, without_m = fly(stale, change.obstacles, city.lat0_deg, city.lon0_deg, start, goal,
-                                     args.sectors, {key: [] for key in timings}, prior=False)
+                                     args.sectors, {key: [] for key in timings}, prior=False,
+                                     max_viewpoints=args.max_viewpoints)
             if without == "goal":
                 moved["with the prior"].append(metres / true_m)
                 moved["without"].append(without_m / true_m)

@@ -22,7 +22,7 @@ from skyroute.planning.errors import PlanningError
 from skyroute.planning.grid import GridMap
 from skyroute.planning.livemap import LiveMap, ScanUpdate
 from skyroute.planning.pruning import line_of_sight
-from skyroute.planning.replan import GoalUnreachable, Replanner
+from skyroute.planning.replan import Blockage, GoalUnreachable, Replanner
 
 from .test_mission import OFFSET, FakeClock, FakeVehicle, make_mission, straight_plan
 
@@ -862,3 +862,48 @@ def test_a_goal_still_out_of_reach_from_every_viewpoint_is_given_up_at_the_fallb
     events = [e for _, e, _ in result.history]
     assert E.GOAL_UNREACHABLE in events and not result.completed
     assert result.final_state is S.MANUAL and not v.telemetry.armed and v.telemetry.on_ground
+
+
+class _ViewpointAfterFallback(_ClosedUntilLookedAt):
+    """No viewpoint at first (the goal is given up for the fallback point 25 m back), then the way to the fallback
+    point is found blocked once and has no route: the next give-up offers a viewpoint, where the goal is in reach."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.asked, self.fallback_ne, self.fallback_blocked = 0, None, False
+
+    def viewpoint(self, position_ne, looked_from=()):
+        self.asked += 1
+        return None if self.asked == 1 else super().viewpoint(position_ne, looked_from)
+
+    def replan(self, position_ne):
+        try:
+            return super().replan(position_ne)
+        except GoalUnreachable as exc:
+            if self.fallback_ne is None and self.goal_ne == GOAL:
+                self.fallback_ne = exc.fallback_ne
+            raise
+
+    def check(self, position_ne, waypoints_ne):
+        heading_back = self.fallback_ne is not None and np.allclose(waypoints_ne[-1, :2], self.fallback_ne)
+        if heading_back and not self.fallback_blocked and self.asked == 1:
+            self.fallback_blocked = True
+            return Blockage("blocked", 6.0, (float(position_ne[0]) - 6.0, float(position_ne[1])))
+        return super().check(position_ne, waypoints_ne)
+
+    def route_to(self, position_ne, target_ne):
+        if self.fallback_blocked and self.fallback_ne is not None and np.allclose(target_ne, self.fallback_ne):
+            raise GoalUnreachable(tuple(target_ne), None)
+        return super().route_to(position_ne, target_ne)
+
+
+def test_a_goal_found_in_reach_from_a_viewpoint_after_it_was_given_up_is_a_success():
+    clock = FakeClock()
+    v = SensingVehicle(clock, np.vstack([STALE, WALL]), start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    gm = GridMap.build(STALE, ALT, SAFETY)
+    obstacles = _ViewpointAfterFallback(LiveMap.for_grid_map(gm, create_grid(STALE, ALT, 0.0)[0]), GOAL, ALT)
+    result = _mission(v, clock, obstacles, calls=[]).run()  # not GoalUnreachableInFlight
+    assert obstacles.fallback_blocked and len(obstacles.offered) == 1
+    assert result.completed and result.landing_error_m < 0.5
+    events = [e for _, e, _ in result.history]
+    assert E.GOAL_UNREACHABLE in events and [r.reason for r in result.replans].count(GOAL_AGAIN) == 1

@@ -547,7 +547,7 @@ class ReplanningMixin:
             self._brake()  # and plan again from where it stopped
         self._lead_in_ne = lead_in
         if viewing:  # the goal is in reach again on the way to a viewpoint
-            self._viewpoint_ne = self._target_ne = None
+            self._viewpoint_ne = self._target_ne = self._unreachable = None
         waypoints = route.waypoints if lead_in is None else _after_lead_in(route.waypoints)
         waypoints = self._flight_waypoints(waypoints, p)
         self._pending = ReplanRecord(self.clock(), p.north_m, p.east_m, blockage.reason, blockage.along_m,
@@ -771,7 +771,7 @@ class ReplanningMixin:
             route = self.sensing.obstacles.replan(here)
         except self.replan_errors as exc:
             raise _Rerouted(self._goal_out_of_reach(exc, self._viewpoint_blockage, True, p)) from None
-        self._viewpoint_ne = self._target_ne = None
+        self._viewpoint_ne = self._target_ne = self._unreachable = None  # (given up once on the way to a fallback)
         waypoints = self._flight_waypoints(route.waypoints, p)
         self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, GOAL_AGAIN, math.nan,
                                          float(route.plan_ms), math.nan, True, waypoints))

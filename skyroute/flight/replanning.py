@@ -771,13 +771,9 @@ class ReplanningMixin:
             route = self.sensing.obstacles.replan(here)
         except self.replan_errors as exc:
             raise _Rerouted(self._goal_out_of_reach(exc, self._viewpoint_blockage, True, p)) from None
-        self._viewpoint_ne = self._target_ne = self._unreachable = None  # (given up once on the way to a fallback)
-        waypoints = self._flight_waypoints(route.waypoints, p)
-        self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, GOAL_AGAIN, math.nan,
-                                         float(route.plan_ms), math.nan, True, waypoints))
-        self._say(f"looked {where}: the goal is in reach after all, {float(route.length_m):.0f} m")
         self._fire(E.REPLANNED)
-        raise _Rerouted(waypoints)
+        # (the give-up is forgotten too: a viewpoint may follow a fallback point whose way was found blocked)
+        self._fly_on_to_goal(p, route, np.asarray(route.waypoints, float), True, looked=f"looked {where}: ")
 
     def _setpoint_sent(self) -> None:
         """After a setpoint: the first one of a new route closes its replan record with the latency."""
@@ -870,11 +866,17 @@ class ReplanningMixin:
             if route is None:
                 return
             waypoints = np.asarray(route.waypoints, float)
+        self._fly_on_to_goal(p, route, waypoints, braked)
+
+    def _fly_on_to_goal(self, p, route, waypoints: np.ndarray, braked: bool, looked: str = "") -> None:
+        """The goal given up (or looked for from a viewpoint) is in reach by ``route`` (its ``waypoints``, from map
+        position ``p``): forget the fallback point or viewpoint, record it ("goal in reach again"), say so and
+        raise :class:`_Rerouted`."""
         self._target_ne = self._unreachable = self._lead_in_ne = self._viewpoint_ne = None
         waypoints = self._flight_waypoints(waypoints, p)
         self.sensing.record(ReplanRecord(self.clock(), p.north_m, p.east_m, GOAL_AGAIN, math.nan,
                                          float(route.plan_ms), math.nan, braked, waypoints))
-        self._say(f"the goal is in reach after all: {'braked and ' if braked else ''}flying on to it, "
+        self._say(f"{looked}the goal is in reach after all: {'braked and ' if braked else ''}flying on to it, "
                   f"{float(getattr(route, 'length_m', math.nan)):.0f} m")
         raise _Rerouted(waypoints)
 

@@ -573,8 +573,8 @@ class Replanner:
         street beside a wall's end, inflated, can close the only way on. Only a view from where that wedge's
         nearest obstacle lies beyond those cells sees them free; holding where the way was found closed often has
         none (a map building nearer in every wedge that covers them), flying up to the closure's edge often does
-        (held-out seed 14's mission 0, offline model: given up at its start before, at the goal at 1.02x the true
-        route's metres after two looks). Fine sectors (PX4's 5 degrees) place their hits well enough that a
+        (held-out seed 14's mission 0, offline model: given up at its start before, at the goal at 1.03x the true
+        route's metres after its looks). Fine sectors (PX4's 5 degrees) place their hits well enough that a
         closure they show is one: there this returns None and the goal is given up at once.
         """
         live = self.live

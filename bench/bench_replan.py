@@ -1,7 +1,7 @@
 """Replanning latency on SF: sensor message in -> new setpoints out, against a from-scratch plan in the same run.
 
     python bench/bench_replan.py [--map SF.csv] [--routes 12] [--walls 2] [--seed 0] [--sectors px4|ardupilot]
-                                 [--compare-prior] [--heldout 11,12,13] [--max-viewpoints N]
+                                 [--compare-prior] [--heldout 11,12,13] [--max-viewpoints N] [--per-mission]
 
 For each of ``--routes`` random SF missions (start and goal free at 5 m with a 5 m margin, at least 300 m apart),
 ``skyroute.cityedit`` puts ``--walls`` walls across the route the grid planner takes on the map; the client's side
@@ -31,7 +31,8 @@ there).
 true map's route (the grid route in the changed city), both ways: the offline model of issue 11's airborne-time
 bar (held-out flights take a few percent longer than their metres, for the turns). ``--heldout SEEDS`` draws the
 missions and walls as ``bench/heldout_replan.py`` does with those seeds (5 missions each, 300-700 m), so the
-model can be set beside those flights.
+model can be set beside those flights. ``--per-mission`` prints a line per mission: its outcome and, when it
+reached the goal, the metres moved against the true map's route.
 """
 
 from __future__ import annotations
@@ -266,6 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sectors", choices=("px4", "ardupilot"), default="px4")
     p.add_argument("--compare-prior", action="store_true",
                    help="also move each mission without the stale-map prior and compare the metres moved")
+    p.add_argument("--per-mission", action="store_true", help="a line per mission: outcome, metres moved")
     p.add_argument("--max-viewpoints", type=int, default=MAX_VIEWPOINTS,
                    help="viewpoints looked from before a goal is given up (wide sectors only; 0: none)")
     p.add_argument("--heldout", default=None, metavar="SEEDS",
@@ -287,22 +289,29 @@ def main(argv: list[str] | None = None) -> int:
     if args.heldout:
         from heldout_replan import missions as heldout_missions
 
-        drawn = [(start, goal, seed + k) for seed in (int(v) for v in args.heldout.split(","))
+        drawn = [(start, goal, seed + k, f"held-out {seed}/{k}") for seed in (int(v) for v in args.heldout.split(","))
                  for k, (start, goal) in enumerate(heldout_missions(gm, 5, seed))]
     else:
-        drawn = [(*_random_mission(gm, rng), args.seed + k) for k in range(args.routes)]
-    for start, goal, wall_seed in drawn:
+        drawn = [(*_random_mission(gm, rng), args.seed + k, f"mission {k}") for k in range(args.routes)]
+    for start, goal, wall_seed, label in drawn:
         try:
             change = walls_across_route(stale, start, goal, altitude_m=ALT_M, safety_m=SAFETY_M, count=args.walls,
                                         seed=wall_seed)
         except (PlanningError, ValueError) as exc:
             outcomes.append(f"skipped ({exc})")
+            if args.per_mission:
+                print(f"{label}: skipped ({exc})", flush=True)
             continue
         outcome, metres = fly(stale, change.obstacles, city.lat0_deg, city.lon0_deg, start, goal, args.sectors,
                               timings, max_viewpoints=args.max_viewpoints)
         outcomes.append(outcome)
-        if args.compare_prior and outcome == "goal":
+        true_m = math.nan
+        if outcome == "goal" and (args.compare_prior or args.per_mission):
             true_m = GridMap.build(change.obstacles, ALT_M, SAFETY_M).plan(start, goal, snap_start=True).length_m
+        if args.per_mission:
+            print(f"{label}: {outcome}, {metres:.0f} m moved, {metres / true_m:.2f}x the true map's route"
+                  if outcome == "goal" else f"{label}: {outcome}", flush=True)
+        if args.compare_prior and outcome == "goal":
             without, without_m = fly(stale, change.obstacles, city.lat0_deg, city.lon0_deg, start, goal,
                                      args.sectors, {key: [] for key in timings}, prior=False,
                                      max_viewpoints=args.max_viewpoints)

@@ -13,7 +13,8 @@ and a fresh client process: once with no fault (the baseline) and once with the 
 at speed-up 5 the vehicle meets 200 ms as a second each way). Two more mixes, outside the default rotation
 (``--mixes``): ``latency100``, ``sensor_noise_dropout`` (0.3 m range noise, 20 % of the sectors lost), and
 ``gps1`` / ``gps2`` (the position estimate off the truth by a Gauss-Markov drift of 1 or 2 m deviation and 10 s
-correlation: harsher than the sim's default 60 s).
+correlation: harsher than the sim's default 60 s), and ``storm``: all at once, moderately (5.8 m/s wind with 2 m/s
+gusts, 10 % loss, 100 ms latency, the noisy sensor, ``gps1``).
 With ``--walls N`` each mission is flown in a changed city, N tall walls across the route the map gives it
 (``skyroute.cityedit``; the sim's truth, the client keeps the map), baseline and fault flight alike.
 
@@ -32,6 +33,7 @@ the client's logs are complete (a navigation log that ends with the outcome, a t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -71,6 +73,9 @@ MIXES = {
     # vehicle flies the estimate: only the scans, matched against the map, tell the client how far off it is
     "gps1": ["--gps-noise", "1", "--gps-correlation", "10"],
     "gps2": ["--gps-noise", "2", "--gps-correlation", "10"],
+    # everything at once, moderately: wind with gusts, a lossy slow link, a noisy sensor, a wandering estimate
+    "storm": ["--wind", "5,3", "--gust", "2", "--packet-loss", "10", "--latency", "100", "--sensor-noise", "0.3",
+              "--sensor-dropout", "20", "--gps-noise", "1", "--gps-correlation", "10"],
 }
 DEFAULT_MIXES = ["loss10", "latency200", "outage3", "loss5_latency100_wind"]
 
@@ -245,13 +250,18 @@ def main(argv=None) -> int:
     parser.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
                         help="the sim's personality (conventions, parameters, sensor messages)")
     parser.add_argument("--out", type=Path, default=None, help="write the flights as JSON here")
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="keep every flight's changed city, report and client logs under this directory")
     args = parser.parse_args(argv)
     simulated = sim_fault_time_is_simulated()
     print(f"map {args.map}, {args.autopilot} personality, speed-up {args.speedup:g}, link faults in "
           f"{'simulated' if simulated else 'wall-clock'} time", flush=True)
     missions = pick_missions(args.map, args.missions, args.seed)
     flights = []
-    with tempfile.TemporaryDirectory(prefix="skyroute-campaign-") as tmp:
+    if args.keep is not None:
+        args.keep.mkdir(parents=True, exist_ok=True)
+    with contextlib.nullcontext(str(args.keep)) if args.keep else tempfile.TemporaryDirectory(
+            prefix="skyroute-campaign-") as tmp:
         for k, mission in enumerate(missions):
             truth = None
             if args.walls:
@@ -262,7 +272,7 @@ def main(argv=None) -> int:
                     continue
             for mix in ("none", args.mixes[k % len(args.mixes)]):
                 workdir = Path(tmp) / f"{k:03d}-{mix}"
-                workdir.mkdir()
+                workdir.mkdir(exist_ok=True)
                 flight = fly_once(mission, mix, map_path=args.map, speedup=args.speedup, seed=args.seed + k,
                                   workdir=workdir, simulated_faults=simulated, autopilot=args.autopilot,
                                   truth_path=truth)

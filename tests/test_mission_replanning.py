@@ -864,6 +864,27 @@ def test_a_goal_still_out_of_reach_from_every_viewpoint_is_given_up_at_the_fallb
     assert result.final_state is S.MANUAL and not v.telemetry.armed and v.telemetry.on_ground
 
 
+
+def test_a_goal_still_out_of_reach_is_logged_once_per_way_and_reason_however_often_it_is_asked(caplog):
+    """On the way to a viewpoint or the fallback point the goal is asked for at every change of the layer (near a
+    wall, at the sensor's rate: 47 lines in 2 s of one flight); the log says so once per way and reason."""
+    reasons = iter(["cut off"] * 5 + ["cut off further on"] * 3)
+
+    def replan(position_ne):
+        raise PlanningError(next(reasons))
+
+    clock = FakeClock()
+    mission = make_mission(FakeVehicle(clock), clock, straight_plan([]), obstacles=SimpleNamespace(replan=replan),
+                           replan_errors=(PlanningError,))
+    with caplog.at_level("INFO", logger="skyroute.flight.replanning"):
+        assert all(mission._goal_route((0.0, 0.0)) is None for _ in range(6))
+        mission._viewpoint_ne = (10.0, 0.0)
+        assert all(mission._goal_route((0.0, 0.0)) is None for _ in range(2))
+    said = [r.getMessage() for r in caplog.records if r.levelname == "INFO" and "still out of reach" in r.message]
+    assert said == ["flying to the fallback point: the goal is still out of reach (cut off)",
+                    "flying to the fallback point: the goal is still out of reach (cut off further on)",
+                    "flying to the viewpoint: the goal is still out of reach (cut off further on)"]
+
 class _ViewpointAfterFallback(_ClosedUntilLookedAt):
     """No viewpoint at first (the goal is given up for the fallback point 25 m back), then the way to the fallback
     point is found blocked once and has no route: the next give-up offers a viewpoint, where the goal is in reach."""

@@ -442,6 +442,7 @@ class ReplanningMixin:
     _viewpoint_ne: tuple[float, float] | None = None  # flying to this point to look before giving the goal up
     _viewpoint_blockage: Blockage | None = None  # the blockage that sent the vehicle there
     _looked_from: tuple[tuple[float, float], ...] = ()  # the viewpoints chosen so far
+    _still_out_said: tuple[str, str] | None = None  # the last "goal still out of reach" logged (way, reason)
 
     @property
     def discovered_obstacles(self) -> np.ndarray:
@@ -885,8 +886,11 @@ class ReplanningMixin:
         try:
             return self.sensing.obstacles.replan(here)
         except self.replan_errors as exc:
-            log.info("flying to the %s: the goal is still out of reach (%s)",
-                     "fallback point" if self._viewpoint_ne is None else "viewpoint", exc)
+            # asked at every change of the layer (the sensor's rate, near a wall): said once per way and reason
+            said = ("fallback point" if self._viewpoint_ne is None else "viewpoint", str(exc))
+            (log.debug if said == self._still_out_said else log.info)(
+                "flying to the %s: the goal is still out of reach (%s)", *said)
+            self._still_out_said = said
             return None
 
     def _take_rerouted(self, p, route, from_m: float) -> None:

@@ -247,17 +247,24 @@ class SmoothPath:
         p = np.asarray(position, float)
         if len(self.points) < 2:
             return 0.0
+        s = self.s_m
+        j0 = self._segment(from_s_m)
+        j1 = int(np.searchsorted(s[:-1], from_s_m + window_m, side="right"))  # segments starting in the window
+        if j1 <= j0:
+            return from_s_m
+        a, b = self.points[j0:j1], self.points[j0 + 1:j1 + 1]
+        ds = s[j0 + 1:j1 + 1] - s[j0:j1]
+        ab = b - a
+        some = ds > 1e-12
+        safe = np.where(some, ds, 1.0)
+        lowest = np.where(some, np.maximum(0.0, (from_s_m - s[j0:j1]) / safe), 0.0)  # not behind from_s_m
+        f = np.where(some, np.minimum(np.maximum(np.einsum("ij,ij->i", p - a, ab) / safe**2, lowest), 1.0), 0.0)
+        gap = a + f[:, None] * ab - p
+        d = np.sqrt(np.einsum("ij,ij->i", gap, gap))
         best_d, best_s = math.inf, from_s_m
-        for j in range(self._segment(from_s_m), len(self.points) - 1):
-            if self.s_m[j] > from_s_m + window_m:
-                break
-            a, b = self.points[j], self.points[j + 1]
-            ds = self.s_m[j + 1] - self.s_m[j]
-            lowest = 0.0 if ds <= 1e-12 else max(0.0, (from_s_m - self.s_m[j]) / ds)  # not behind from_s_m
-            f = 0.0 if ds <= 1e-12 else min(max(float((p - a) @ (b - a)) / ds**2, lowest), 1.0)
-            d = float(np.linalg.norm(a + f * (b - a) - p))
-            if d < best_d - 1e-9:
-                best_d, best_s = d, float(self.s_m[j] + f * ds)
+        for k, dk in enumerate(d.tolist()):  # the first of near-equal distances wins, as the path runs
+            if dk < best_d - 1e-9:
+                best_d, best_s = dk, float(s[j0 + k] + f[k] * ds[k])
         return best_s
 
 

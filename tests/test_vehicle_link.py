@@ -27,7 +27,8 @@ class FakeAutopilot:
     """A few dozen lines of autopilot on 127.0.0.1:PORT (TCP), system ``sysid`` component 1.
 
     Knobs: ``deny`` / ``temporary`` / ``in_progress`` {command: how many DENIED / TEMPORARILY_REJECTED /
-    IN_PROGRESS answers first}; ``silent`` {command: sends to ignore}; ``send_heartbeat``, ``send_positions``;
+    IN_PROGRESS answers first}; ``silent`` {command: sends to ignore}; ``lost_acks`` {command: sends obeyed but
+    not answered}; ``send_heartbeat``, ``send_positions``;
     ``on_request_only``: stream LOCAL_POSITION_NED only after a SET_MESSAGE_INTERVAL for it; ``latency_s`` delays
     everything it sends; ``params`` {name: (value, MAV_PARAM_TYPE)} sent PX4-style (integers bytewise);
     ``foreign_acks``: answer each command first with an ack addressed to another ground station (255, 190);
@@ -39,11 +40,13 @@ class FakeAutopilot:
     def __init__(self, autopilot=mavlink.MAV_AUTOPILOT_PX4, *, sysid=1, deny=None, temporary=None,
                  in_progress=None, silent=None, mav_type=None, send_heartbeat=True, send_positions=True,
                  on_request_only=False, latency_s=0.0, params=None, foreign_acks=False, other_system=None,
-                 key=None, deny_text=b"Preflight Fail: GPS not ready", ack_delay_s=0.0, sensors_present=0):
+                 key=None, deny_text=b"Preflight Fail: GPS not ready", ack_delay_s=0.0, sensors_present=0,
+                 lost_acks=None):
         self.autopilot, self.sysid = autopilot, sysid
         self.mav_type = mavlink.MAV_TYPE_QUADROTOR if mav_type is None else mav_type
         self.deny, self.temporary = dict(deny or {}), dict(temporary or {})
         self.in_progress, self.silent = dict(in_progress or {}), dict(silent or {})
+        self.lost_acks = dict(lost_acks or {})  # command -> how many of its final acks are lost (it is obeyed)
         self.send_heartbeat, self.send_positions = send_heartbeat, send_positions
         self.on_request_only, self.latency_s = on_request_only, latency_s
         self.params = dict(params or {})
@@ -210,6 +213,8 @@ class FakeAutopilot:
                 self.custom_mode = (int(msg.param2) << 16) | (int(msg.param3) << 24)
             else:
                 self.custom_mode = int(msg.param2)
+        elif cmd == mavlink.MAV_CMD_NAV_LAND and self.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+            self.custom_mode = (4 << 16) | (6 << 24)  # AUTO.LAND, as PX4's navigator takes the command
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             self.requested.add(int(msg.param1))
         elif cmd == mavlink.MAV_CMD_REQUEST_MESSAGE and int(msg.param1) == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
@@ -218,6 +223,10 @@ class FakeAutopilot:
                 else 0)
             self._send(enc, mavlink.MAVLink_autopilot_version_message(caps, 0, 0, 0, 0, bytes(8), bytes(8), bytes(8),
                                                                       0, 0, 0), delay)
+        if self.lost_acks.get(cmd, 0) > 0:  # obeyed, but the answer never arrives (a lossy radio link)
+            self.lost_acks[cmd] -= 1
+            self.unacked[cmd] -= 1
+            return
         self._ack(enc, msg, mavlink.MAV_RESULT_ACCEPTED, delay)
 
 
@@ -407,6 +416,33 @@ def test_command_retried_with_confirmation(fake, connect):
     v = connect(ap.port)
     v.arm()
     assert [m.confirmation for m in ap.commands(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)] == [0, 1, 2]
+
+
+@pytest.mark.parametrize("action", ["arm", "set_mode", "land"])
+def test_a_command_obeyed_but_unanswered_is_taken_from_the_next_heartbeat_not_resent_or_failed(fake, connect, action):
+    # a lossy radio link: the autopilot switched mode (armed) but its COMMAND_ACK was lost, every time
+    command = {"arm": mavlink.MAV_CMD_COMPONENT_ARM_DISARM, "set_mode": mavlink.MAV_CMD_DO_SET_MODE,
+               "land": mavlink.MAV_CMD_NAV_LAND}[action]
+    ap = fake(lost_acks={command: 99})
+    v = connect(ap.port, command_retries=2)
+    assert wait_until(lambda: v.telemetry.mode != "")
+    {"arm": v.arm, "set_mode": lambda: v.set_mode("LOITER", confirm_s=0.0), "land": v.land}[action]()
+    assert len(ap.commands(command)) == 1
+    assert wait_until(lambda: (v.telemetry.armed if action == "arm" else
+                               v.telemetry.mode == ("LOITER" if action == "set_mode" else "LAND")))
+
+
+def test_a_stale_heartbeat_does_not_answer_a_command(fake, connect):
+    # the heartbeat already says LOITER, but none comes after the request (the autopilot ignores it): no answer
+    ap = fake(silent={mavlink.MAV_CMD_DO_SET_MODE: 99})
+    ap.custom_mode = (4 << 16) | (3 << 24)  # AUTO.LOITER
+    v = connect(ap.port, command_retries=1, link_floor_s=5.0)
+    assert wait_until(lambda: v.telemetry.mode == "LOITER")
+    ap.send_heartbeat = False  # positions keep the link alive
+    time.sleep(0.1)
+    with pytest.raises(vh.CommandTimeout):
+        v.set_mode("LOITER", confirm_s=0.0)
+    assert len(ap.commands(mavlink.MAV_CMD_DO_SET_MODE)) == 2
 
 
 def test_command_timeout_after_bounded_retries(fake, connect):

@@ -4,8 +4,10 @@ An ack counts only if it answers this command (``command``), is addressed to us 
 ``target_component`` ours, or 0 from autopilots that do not fill them) and comes from the autopilot we sent it
 to, so a ground station's acks on the same link cannot satisfy ours. One command of a kind is in flight at a
 time (five back-to-back SET_MESSAGE_INTERVALs could not be told apart otherwise). IN_PROGRESS means wait for
-the final ack, never resend; no ack means resend with ``confirmation`` incremented; TEMPORARILY_REJECTED is
-retried when the caller asks (PX4 accepts OFFBOARD only once setpoints stream). Part of the ``vehicle`` package.
+the final ack, never resend; no ack means resend with ``confirmation`` incremented, unless the caller can see the
+command's effect in the telemetry (``done``: the heartbeat's mode, its armed flag) and sees it: then the command
+was taken and its ack lost, as on a lossy radio link, and resending or failing would be wrong. TEMPORARILY_REJECTED
+is retried when the caller asks (PX4 accepts OFFBOARD only once setpoints stream). Part of the ``vehicle`` package.
 """
 
 from __future__ import annotations
@@ -88,8 +90,10 @@ class Commander:
             return self._locks[command]
 
     def run(self, target: tuple[int, int], command: int, *params: float, timeout_s: float = 1.5,
-            retries: int = 3, in_progress_timeout_s: float = 30.0, retry_temporary_s: float = 0.0):
-        """Send ``command`` to ``target`` and return its ACCEPTED ack.
+            retries: int = 3, in_progress_timeout_s: float = 30.0, retry_temporary_s: float = 0.0,
+            done: Callable[[], bool] | None = None):
+        """Send ``command`` to ``target`` and return its ACCEPTED ack; None when an attempt went unanswered but
+        ``done()`` (the command's effect, seen in the telemetry) is true: the command was taken, its ack lost.
 
         Raises
         ------
@@ -107,7 +111,9 @@ class Commander:
         with self._lock(command):
             while True:
                 started = self.clock()
-                ack = self._exchange(target, command, p, timeout_s, retries, in_progress_timeout_s)
+                ack = self._exchange(target, command, p, timeout_s, retries, in_progress_timeout_s, done)
+                if ack is None:
+                    return None
                 if ack.result == mavlink.MAV_RESULT_ACCEPTED:
                     return ack
                 if ack.result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED and self.clock() < give_up_temporary:
@@ -116,8 +122,9 @@ class Commander:
                     continue
                 raise CommandRejected(command, ack.result, self.reason(command, started - 0.2, self.clock()))
 
-    def _exchange(self, target, command, p, timeout_s, retries, in_progress_timeout_s):
-        """One command until its final ack (resending on silence); returns the ack."""
+    def _exchange(self, target, command, p, timeout_s, retries, in_progress_timeout_s, done=None):
+        """One command until its final ack (resending on silence); returns the ack, or None once an unanswered
+        attempt's effect is seen (``done``)."""
         attempt_timeout_s = max(timeout_s, 2.0 * self.health.rtt_s + 0.3)
         with self._cond:
             self._pending[command] = _Pending(command, target)
@@ -128,6 +135,10 @@ class Commander:
                 ack = self._wait_final(command, attempt_timeout_s, in_progress_timeout_s)
                 if ack is None:
                     log.debug("no ack for %s (attempt %d)", command_name(command), confirmation + 1)
+                    if done is not None and done():
+                        log.info("no ack for %s, but the telemetry shows it taken: the ack was lost",
+                                 command_name(command))
+                        return None
                     if not self.health.ok():
                         break
                     continue

@@ -130,21 +130,22 @@ class MavlinkVehicle(MavlinkLink):
     def arm(self) -> None:
         """Arm (MAV_CMD_COMPONENT_ARM_DISARM 1). Returns as soon as the autopilot accepts (the ack says it is
         armed; the next heartbeat confirms it), so the takeoff can follow at once."""
-        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, done=lambda t: t.armed)
         self._assume(armed=True)
         log.info("armed")
 
     def disarm(self, *, force: bool = False) -> None:
         """Disarm; ``force`` sends the 21196 magic (disarm in the air), never used by the mission."""
-        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196 if force else 0)
+        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196 if force else 0, done=lambda t: not t.armed)
         self.wait_for(lambda t: not t.armed, 3.0, "heartbeat disarmed flag")
         log.info("disarmed")
 
     def set_mode(self, mode: str, *, retry_temporary_s: float = 0.0, confirm_s: float = 2.0) -> None:
-        """DO_SET_MODE by name (pymavlink's PX4 or ArduPilot table); waits ``confirm_s`` for the heartbeat."""
+        """DO_SET_MODE by name (pymavlink's PX4 or ArduPilot table); waits ``confirm_s`` for the heartbeat.
+        A heartbeat in that mode also answers it when its ack is lost."""
         main_mode, sub_mode = mode_numbers(self.autopilot, mode, self._mav_type)
         self.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main_mode,
-                          sub_mode, retry_temporary_s=retry_temporary_s)
+                          sub_mode, retry_temporary_s=retry_temporary_s, done=lambda t: t.mode == mode.upper())
         if confirm_s > 0:
             self.wait_for(lambda t: t.mode == mode.upper(), confirm_s, f"heartbeat mode {mode.upper()}")
         log.info("mode %s", mode.upper())
@@ -216,7 +217,8 @@ class MavlinkVehicle(MavlinkLink):
             self.set_mode("LAND", confirm_s=0.0)
         else:
             try:
-                self.command_long(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, _NAN, _NAN, _NAN, _NAN)
+                self.command_long(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, _NAN, _NAN, _NAN, _NAN,
+                                  done=lambda t: t.mode == "LAND")
             except CommandRejected as exc:
                 log.warning("%s; switching to LAND mode instead", exc)
                 self.set_mode("LAND", confirm_s=0.0)

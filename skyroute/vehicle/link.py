@@ -332,12 +332,22 @@ class MavlinkLink:
 
     # ------------------------------------------------------------------------------------------- commands
     def command_long(self, command: int, *params: float, timeout_s: float | None = None,
-                     retries: int | None = None, retry_temporary_s: float = 0.0):
-        """Send COMMAND_LONG to the autopilot and return its ACCEPTED ack (see :class:`~.commands.Commander`)."""
+                     retries: int | None = None, retry_temporary_s: float = 0.0,
+                     done: Callable[[Telemetry], bool] | None = None):
+        """Send COMMAND_LONG to the autopilot and return its ACCEPTED ack, or None when an attempt went unanswered
+        but ``done(telemetry)``, on a heartbeat received since it was first sent, says the command took effect
+        (see :class:`~.commands.Commander`)."""
+        since_s = time.monotonic()  # only a heartbeat sent after the command can show its effect
+
+        def seen() -> bool:
+            t = self.telemetry
+            return t.last_heartbeat_s > since_s and bool(done(t))
+
         return self.commander.run(
             self._target, command, *params,
             timeout_s=self.command_timeout_s if timeout_s is None else timeout_s,
-            retries=self.command_retries if retries is None else retries, retry_temporary_s=retry_temporary_s)
+            retries=self.command_retries if retries is None else retries, retry_temporary_s=retry_temporary_s,
+            done=None if done is None else seen)
 
     def _refusal_reason(self, command: int, since_s: float, until_s: float, grace_s: float = 0.3) -> str | None:
         time.sleep(grace_s)  # a text may trail its ack

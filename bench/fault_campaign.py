@@ -68,6 +68,8 @@ MIXES = {
     "loss5_latency100_wind": ["--packet-loss", "5", "--latency", "100", "--wind", "3,-2.6", "--gust", "1"],
     # not in the default rotation (--mixes): they matter most where the sensor finds what the map lacks (--walls)
     "latency100": ["--latency", "100"],
+    # a poor radio link: acks go missing (a command whose effect the heartbeat shows is taken as done)
+    "loss30": ["--packet-loss", "30"],
     "sensor_noise_dropout": ["--sensor-noise", "0.3", "--sensor-dropout", "20"],
     # the position estimate wanders off the truth (a drift of this many metres' deviation, 10 s correlation), the
     # vehicle flies the estimate: only the scans, matched against the map, tell the client how far off it is

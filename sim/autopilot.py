@@ -26,7 +26,7 @@ from .arming import GroundLogic, arm_refusal, readiness_reason
 from .boot import resolve_boot
 from .commands import CommandHandlers, LinkState
 from .config import START_MARGIN_M, SimConfig
-from .dynamics import ControlTarget, Limits, PointMassQuad
+from .dynamics import GRAVITY_M_S2, ControlTarget, Limits, PointMassQuad
 from .failsafes import Failsafes
 from .faults import CommandFaults
 from .modes import ArduCopter, Behaviour, Mode, Task, make_personality
@@ -150,11 +150,14 @@ class Autopilot(CommandHandlers, TaskControl):
                                               else "MPC_ACC_HOR"]
             lim.max_climb_m_s = p["MPC_Z_VEL_MAX_UP"]
             lim.max_descent_m_s = p["MPC_Z_VEL_MAX_DN"]
+            tilt_deg = p["MPC_TILTMAX_AIR"]
         else:
             lim.max_horizontal_speed_m_s = p["WPNAV_SPEED"] / 100.0
             lim.max_horizontal_accel_m_s2 = p["WPNAV_ACCEL"] / 100.0
             lim.max_climb_m_s = p["WPNAV_SPEED_UP"] / 100.0
             lim.max_descent_m_s = p["WPNAV_SPEED_DN"] / 100.0
+            tilt_deg = p["ANGLE_MAX"] / 100.0
+        lim.max_tilt_accel_m_s2 = GRAVITY_M_S2 * math.tan(math.radians(min(max(tilt_deg, 10.0), 80.0)))
         for attr in ("max_horizontal_speed_m_s", "max_horizontal_accel_m_s2", "max_climb_m_s", "max_descent_m_s"):
             setattr(lim, attr, max(0.05, getattr(lim, attr)))
 

@@ -34,10 +34,10 @@ class Limits:
     #: Linear drag coefficient (1/s) coupling the airframe to the wind.
     drag_1_s: float = 0.3
     #: Horizontal acceleration the airframe's tilt can give at most (m/s^2): g tan(30 degrees), ArduCopter's
-    #: ANGLE_MAX default (PX4's MPC_TILTMAX_AIR is 45). The trajectory limit (``max_horizontal_accel_m_s2``,
-    #: WPNAV_ACCEL / MPC_ACC_HOR) shapes what the vehicle is asked to do; holding it against the wind's drag comes
-    #: on top, up to this.
-    max_tilt_accel_m_s2: float = 9.81 * math.tan(math.radians(30.0))
+    #: ANGLE_MAX default; the autopilot sets it from its parameter (PX4's MPC_TILTMAX_AIR is 45 degrees). The
+    #: trajectory limit (``max_horizontal_accel_m_s2``, WPNAV_ACCEL / MPC_ACC_HOR) shapes what the vehicle is asked
+    #: to do; holding it against the wind's drag comes on top, up to this.
+    max_tilt_accel_m_s2: float = GRAVITY_M_S2 * math.tan(math.radians(30.0))
     #: Time constant (s) of the velocity loop's integrator, which learns the wind's drag and leans into it.
     wind_integrator_s: float = 1.0
 

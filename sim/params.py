@@ -55,6 +55,8 @@ PX4_PARAMS: dict[str, ParamSpec] = {
     "MPC_ACC_HOR": ParamSpec(3.0, REAL32, "max horizontal acceleration in Hold, takeoff, land, return (m/s^2)"),
     "MPC_ACC_HOR_MAX": ParamSpec(5.0, REAL32, "max horizontal acceleration in OFFBOARD (m/s^2; SITL: a 40 m step "
                                               "reached ~5-7 m/s^2, not MPC_ACC_HOR)"),
+    "MPC_TILTMAX_AIR": ParamSpec(45.0, REAL32, "max tilt in the air (deg): bounds the lean that accelerates the "
+                                               "vehicle and holds it against the wind"),
     "MPC_Z_VEL_MAX_UP": ParamSpec(3.0, REAL32, "max climb rate (m/s)"),
     "MPC_Z_VEL_MAX_DN": ParamSpec(1.5, REAL32, "max descent rate (m/s)"),
     "MPC_LAND_SPEED": ParamSpec(0.7, REAL32, "landing descent rate (m/s)"),
@@ -80,6 +82,8 @@ ARDUPILOT_PARAMS: dict[str, ParamSpec] = {
     "WPNAV_SPEED_UP": ParamSpec(250.0, REAL32, "max climb rate (cm/s)"),
     "WPNAV_SPEED_DN": ParamSpec(150.0, REAL32, "max descent rate (cm/s)"),
     "LAND_SPEED": ParamSpec(50, INT16, "landing descent rate (cm/s)"),
+    "ANGLE_MAX": ParamSpec(3000, INT16, "max lean angle (centidegrees): bounds the lean that accelerates the vehicle "
+                                        "and holds it against the wind"),
     "DISARM_DELAY": ParamSpec(10, INT8, "landed (or armed on the ground) for this long (s) -> disarm (0: off)"),
     "PILOT_TKOFF_ALT": ParamSpec(0.0, REAL32, "takeoff height when NAV_TAKEOFF param7 is NaN (cm; at least 1 m)"),
     "RTL_ALT": ParamSpec(1500, INT32, "RTL climbs to this height above home first (cm)"),

@@ -70,6 +70,24 @@ def test_wind_pushes_but_the_controller_learns_it_and_holds(sim_start, sim_conne
     assert abs(pos["east_m"]) < 0.1 and abs(pos["north_m"]) < 0.05
 
 
+@pytest.mark.flight
+def test_the_tilt_limit_is_the_autopilots_parameter_and_bounds_the_wind_it_holds_against(sim_start, sim_connect):
+    # 20 m/s of wind drags 6 m/s^2 at a standstill: PX4's 45 degrees (MPC_TILTMAX_AIR) lean 9.8 m/s^2 against
+    # it and hold; set to ArduCopter's 30 degrees (5.7 m/s^2) the vehicle is carried off downwind
+    sim = sim_start(speedup=20.0, wind_m_s=(0.0, 20.0))
+    c = sim_connect(sim)
+    c.wait_for("HEARTBEAT")
+    _takeoff_offboard(c, sim)
+    wait_sim_s = sim.truth()["sim_time_s"] + 10.0
+    sim.wait_until(lambda s: s["sim_time_s"] >= wait_sim_s, 5)
+    assert abs(sim.truth()["position"]["east_m"]) < 0.3
+    since = c.mark()
+    c.send(M.MAVLink_param_set_message(1, 1, b"MPC_TILTMAX_AIR", 30.0, M.MAV_PARAM_TYPE_REAL32))
+    c.wait_for("PARAM_VALUE", lambda m: m.param_id == "MPC_TILTMAX_AIR", since=since)
+    state = sim.wait_until(lambda s: s["position"]["east_m"] > 5.0, 5)
+    assert state["position"]["east_m"] > 5.0
+
+
 def test_gps_noise_moves_reports_not_truth(sim_start, sim_connect):
     sim = sim_start(gps_noise_m=2.0, seed=7)
     c = sim_connect(sim)

@@ -10,7 +10,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from tests import shared
-from tests.conftest import wait_ready
+from tests.conftest import wait_ready, wait_sim
 
 M = mavlink
 
@@ -78,8 +78,7 @@ def test_the_tilt_limit_is_the_autopilots_parameter_and_bounds_the_wind_it_holds
     c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _takeoff_offboard(c, sim)
-    wait_sim_s = sim.truth()["sim_time_s"] + 10.0
-    sim.wait_until(lambda s: s["sim_time_s"] >= wait_sim_s, 5)
+    wait_sim(sim, 10.0, timeout_s=5.0)
     assert abs(sim.truth()["position"]["east_m"]) < 0.3
     since = c.mark()
     c.send(M.MAVLink_param_set_message(1, 1, b"MPC_TILTMAX_AIR", 30.0, M.MAV_PARAM_TYPE_REAL32))

@@ -144,10 +144,14 @@ class MavlinkVehicle(MavlinkLink):
         """DO_SET_MODE by name (pymavlink's PX4 or ArduPilot table); waits ``confirm_s`` for the heartbeat.
         A heartbeat in that mode also answers it when its ack is lost."""
         main_mode, sub_mode = mode_numbers(self.autopilot, mode, self._mav_type)
+
+        def in_mode(t) -> bool:
+            return t.mode == mode.upper()
+
         self.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main_mode,
-                          sub_mode, retry_temporary_s=retry_temporary_s, done=lambda t: t.mode == mode.upper())
+                          sub_mode, retry_temporary_s=retry_temporary_s, done=in_mode)
         if confirm_s > 0:
-            self.wait_for(lambda t: t.mode == mode.upper(), confirm_s, f"heartbeat mode {mode.upper()}")
+            self.wait_for(in_mode, confirm_s, f"heartbeat mode {mode.upper()}")
         log.info("mode %s", mode.upper())
 
     def _hold_here(self) -> None:

@@ -214,6 +214,10 @@ def test_a_goal_that_becomes_unreachable_holds_lands_at_the_nearest_safe_point_a
     assert looks == 0 if autopilot == "px4" else looks <= MAX_VIEWPOINTS
 
 
+# In the SITL tests' group (one worker, one test at a time), so it never flies beside a real-time autopilot: beside
+# PX4 SITL in CI (2 cores) it took 44 s of wall time instead of 27 and the ArduPilot flight came 2.35 m from a
+# building (4.5-4.9 m alone, or three of it side by side).
+@pytest.mark.xdist_group("sitl")
 @pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
 def test_scan_matching_keeps_a_drifting_vehicle_on_its_route(start_sim, tmp_path, capsys, watchdog, autopilot):
     """The same drift (1.5 m, 10 s correlation), the 5 m margin, the README's 600 m route: the scans matched to the
@@ -232,7 +236,7 @@ def test_scan_matching_keeps_a_drifting_vehicle_on_its_route(start_sim, tmp_path
     out, err = capsys.readouterr()
     assert code == mp.EXIT_OK, err
     assert not report["collisions"] and not report["crashed"]
-    assert report["min_clearance_m"] >= 0.5 * SAFETY_M
+    assert report["min_clearance_m"] >= 0.5 * SAFETY_M, report["min_clearance_at"]
     log = _navlog(tmp_path)
     replans = log.count("replan: path")
     assert replans <= 2, out

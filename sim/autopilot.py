@@ -88,6 +88,8 @@ class Autopilot(CommandHandlers, TaskControl):
         self.rng = random.Random(config.seed)
         self.sim_time_s = 0.0
         self.boot_neu = city.boot_point(config.start, config.radius_m, START_MARGIN_M)
+        #: local metres per map metre, north and east: the personality's local frame (CityMap.local_scale)
+        self.local_scale = np.array([*city.local_scale(config.autopilot), 1.0])
         self.origin_set = False
         self.home_neu: np.ndarray | None = None
         self.quad = PointMassQuad(Limits(), self.boot_neu)
@@ -395,7 +397,7 @@ class Autopilot(CommandHandlers, TaskControl):
             self.sensor.sample(self.sim_time_s, centre, s.yaw_rad, s.position_neu)
         if self.targets is not None:
             self.targets.step(self.sim_time_s, s.position_neu)
-            for msg in self.targets.messages(self.sim_time_s, s.position_neu, self.origin_neu):
+            for msg in self.targets.messages(self.sim_time_s, s.position_neu, self.origin_neu, self.local_scale):
                 self.send(None, msg)
         home_up = self.home_neu[2] if self.home_neu is not None else self.boot_neu[2]
         self.recorder.update(dt_s, s.position_neu, self.armed, self.airborne, home_up)
@@ -438,8 +440,8 @@ class Autopilot(CommandHandlers, TaskControl):
         lat, lon, alt = self.city.map_to_geodetic(*pos)
         hlat, hlon, halt = self.city.map_to_geodetic(*home)
         olat, olon, oalt = self.city.map_to_geodetic(*self.boot_neu)
-        local = pos - self.origin_neu
-        home_local = home - self.origin_neu
+        local = (pos - self.origin_neu) * self.local_scale
+        home_local = (home - self.origin_neu) * self.local_scale
         roll, pitch, yaw = self.quad.attitude()
         base = self.personality.base_mode(self.mode, self.armed, self.airborne)
         v = s.velocity_neu

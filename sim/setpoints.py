@@ -81,13 +81,14 @@ def local_ned_target(ap, link, msg) -> ControlTarget | None:
     frame = int(msg.coordinate_frame)
     here = ap.position_neu
     yaw = float(msg.yaw)
+    # positions and offsets are in the personality's local metres (CityMap.local_scale): back to the map's
     if frame in _LOCAL_FRAMES:
-        pos = ap.origin_neu + np.array([x, y, -z])
+        pos = ap.origin_neu + np.array([x, y, -z]) / ap.local_scale
     elif frame in _OFFSET_FRAMES:
-        pos = here + np.array([x, y, -z])
+        pos = here + np.array([x, y, -z]) / ap.local_scale
     elif frame in _BODY_FRAMES:
         c, s = math.cos(ap.quad.state.yaw_rad), math.sin(ap.quad.state.yaw_rad)
-        pos = here + np.array([c * x - s * y, s * x + c * y, -z])
+        pos = here + np.array([c * x - s * y, s * x + c * y, -z]) / ap.local_scale
         vx, vy = c * vx - s * vy, s * vx + c * vy
         yaw = ap.quad.state.yaw_rad + yaw
     else:

@@ -118,9 +118,9 @@ class GroundTargets:
                 if d <= cfg.visit_radius_m and self.visited_s[k] is None:
                     self.visited_s[k] = round(sim_time_s, 3)
 
-    def messages(self, sim_time_s: float, position_neu, origin_neu) -> list:
+    def messages(self, sim_time_s: float, position_neu, origin_neu, local_scale=(1.0, 1.0, 1.0)) -> list:
         """LANDING_TARGET messages due now (one per target in view, at ``rate_hz``); ``origin_neu`` is the
-        autopilot's local origin in the map frame."""
+        autopilot's local origin in the map frame, ``local_scale`` its local metres per map metre."""
         if not self.in_view.any() or sim_time_s - self._sent_s < 1.0 / self.config.rate_hz - 1e-9:
             return []
         self._sent_s = sim_time_s
@@ -129,7 +129,8 @@ class GroundTargets:
         for k in np.flatnonzero(self.in_view):
             tn, te = (float(v) for v in self.ne[k])
             dn, de, height = tn - n, te - e, max(up, 1e-3)
-            local = (tn - float(origin_neu[0]), te - float(origin_neu[1]), float(origin_neu[2]) - 0.0)
+            local = ((tn - float(origin_neu[0])) * local_scale[0], (te - float(origin_neu[1])) * local_scale[1],
+                     float(origin_neu[2]) - 0.0)
             out.append(M.MAVLink_landing_target_message(
                 int(sim_time_s * 1e6), int(k), M.MAV_FRAME_LOCAL_NED, math.atan2(dn, height),
                 math.atan2(de, height), math.sqrt(dn * dn + de * de + up * up), 0.5, 0.5,

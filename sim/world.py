@@ -179,6 +179,20 @@ class CityMap:
         lat, lon, _alt = pymap3d.ned2geodetic(north_m, east_m, 0.0, self.lat0_deg, self.lon0_deg, 0.0)
         return float(lat), float(lon), float(up_m)
 
+    def local_scale(self, autopilot: str) -> tuple[float, float]:
+        """How an autopilot's local frame measures the map's metres, north and east (local metres per map metre).
+
+        The real autopilots turn latitude and longitude differences into local metres on a sphere, not the WGS84
+        ellipsoid: ArduPilot's Location::get_distance_NE uses the equatorial radius (LOCATION_SCALING_FACTOR),
+        PX4's map projection (lib/geo) a 6371 km one. At SF's latitude ArduPilot's north is 0.29 % long and its
+        east 0.13 % short; PX4's 0.18 % and 0.24 %. A client that takes LOCAL_POSITION_NED for true metres lands
+        half a metre to a metre off a goal 460 m away; the sim reports its local frame the same way.
+        """
+        radius = {"ardupilot": 6378137.0, "px4": 6371000.0}[autopilot]
+        a, e2 = 6378137.0, 6.69437999014e-3
+        w = 1.0 - e2 * math.sin(math.radians(self.lat0_deg)) ** 2
+        return radius * w**1.5 / (a * (1.0 - e2)), radius * math.sqrt(w) / a
+
     # ------------------------------------------------------------------ queries
     def _cell(self, north_m: float, east_m: float) -> tuple[int, int]:
         return math.floor(north_m / CELL_M), math.floor(east_m / CELL_M)

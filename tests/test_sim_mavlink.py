@@ -8,10 +8,12 @@ import statistics
 import threading
 import time
 
+import numpy as np
 import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from sim.world import CityMap
 from tests.conftest import wait_ready, wait_sim
 
 M = mavlink
@@ -327,17 +329,20 @@ def test_flying_around_a_building_reports_clearance(sim_start, sim_connect, tmp_
     c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _offboard_takeoff(c, sim)
+    # PX4's local metres, on its 6371 km sphere: 15 m east is 15.036 map metres at SF, 60 m north 59.89
+    scale_n, scale_e = CityMap(37.792480, -122.397450, np.zeros((0, 6))).local_scale("px4")
+    east, north = 15.0 / scale_e, 60.0 / scale_n
     c.setpoint_local(0.0, 15.0, -5.0)
-    sim.wait_until(lambda s: abs(s["position"]["east_m"] - 15.0) < 0.02, 10)
+    sim.wait_until(lambda s: abs(s["position"]["east_m"] - east) < 0.02, 10)
     c.setpoint_local(60.0, 15.0, -5.0)
-    sim.wait_until(lambda s: abs(s["position"]["north_m"] - 60.0) < 0.05, 15)
+    sim.wait_until(lambda s: abs(s["position"]["north_m"] - north) < 0.05, 15)
     assert c.command(M.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan).result == 0
     sim.wait_until(lambda s: not s["armed"], 20)
     report = sim.report()
     assert report["collisions"] == [] and not report["crashed"]
-    # Path at east 15 m, building's east face at 5 m, sphere radius 0.3 m -> 9.7 m.
-    assert 9.5 <= report["min_clearance_m"] <= 9.7 + 0.02  # + the 0.02 m waypoint tolerance above
-    assert report["landed"]["north_m"] == pytest.approx(60.0, abs=0.1)
+    # Path at east 15.036 m, building's east face at 5 m, sphere radius 0.3 m -> 9.736 m.
+    assert 9.5 <= report["min_clearance_m"] <= east - 5.3 + 0.02  # + the 0.02 m waypoint tolerance above
+    assert report["landed"]["north_m"] == pytest.approx(north, abs=0.1)
     assert report["max_altitude_m"] == pytest.approx(5.0, abs=0.1)
     assert report["distance_flown_m"] == pytest.approx(5 + 15 + 60 + 5, abs=1.5)
     assert report["armed_time_s"] > 0

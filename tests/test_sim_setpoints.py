@@ -13,10 +13,11 @@ from sim.setpoints import local_ned_target
 from skyroute.vehicle import TYPE_MASK_POSITION_VELOCITY_ACCEL_YAW, TYPE_MASK_POSITION_VELOCITY_YAW
 
 
-def autopilot(*, px4: bool, yaw_rad: float = 0.0):
+def autopilot(*, px4: bool, yaw_rad: float = 0.0, local_scale=(1.0, 1.0, 1.0)):
     """The parts of the sim's autopilot a setpoint is read against: at map (10 N, 20 E, 5 up), origin at 0."""
     return SimpleNamespace(cfg=SimpleNamespace(strict=True), is_px4=px4, position_neu=np.array([10.0, 20.0, 5.0]),
-                           origin_neu=np.zeros(3), quad=SimpleNamespace(state=SimpleNamespace(yaw_rad=yaw_rad)))
+                           origin_neu=np.zeros(3), quad=SimpleNamespace(state=SimpleNamespace(yaw_rad=yaw_rad)),
+                           local_scale=np.array(local_scale))
 
 
 def setpoint(mask: int, frame: int = M.MAV_FRAME_LOCAL_NED):
@@ -47,3 +48,11 @@ def test_an_acceleration_masked_out_or_sent_to_ardupilot_is_ignored(px4, mask):
     target = local_ned_target(autopilot(px4=px4), SimpleNamespace(classic=False, link_id=1), setpoint(mask))
     assert target.position_neu == pytest.approx((30.0, 40.0, 5.0))
     assert all(math.isnan(a) for a in target.accel_neu)
+
+
+def test_a_local_setpoint_is_in_the_autopilots_local_metres_not_the_maps():
+    """ArduPilot's local north is 0.29 % longer than the map's metres at SF: 30 m north in its frame is 29.9 m."""
+    scale = (1.00287, 0.99876, 1.0)
+    target = local_ned_target(autopilot(px4=False, local_scale=scale), SimpleNamespace(classic=False, link_id=1),
+                              setpoint(TYPE_MASK_POSITION_VELOCITY_YAW))
+    assert target.position_neu == pytest.approx((30.0 / 1.00287, 40.0 / 0.99876, 5.0))

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from sim.world import CityMap
 from tests import shared
 from tests.conftest import wait_ready, wait_sim
 
@@ -134,8 +135,10 @@ def test_sf_map_flight_keeps_up_with_speedup(sim_start, sim_connect):
     c = sim_connect(sim)
     c.wait_for("HEARTBEAT")
     _takeoff_offboard(c, sim, altitude_m=120.0)  # above the tallest building (106 m)
-    c.setpoint_local(150.0, 150.0, -120.0)
-    sim.wait_until(lambda s: math.hypot(s["position"]["north_m"] - 150, s["position"]["east_m"] - 150) < 0.1, 20)
+    c.setpoint_local(150.0, 150.0, -120.0)  # PX4's local metres (its 6371 km sphere): map (149.73, 150.36)
+    scale_n, scale_e = CityMap(37.792480, -122.397450, np.zeros((0, 6))).local_scale("px4")
+    north, east = 150.0 / scale_n, 150.0 / scale_e
+    sim.wait_until(lambda s: math.hypot(s["position"]["north_m"] - north, s["position"]["east_m"] - east) < 0.1, 20)
     report = sim.report()
     assert report["collisions"] == [] and 0 < report["min_clearance_m"] < 50
     assert sim.behind_s < 0.5

@@ -96,6 +96,25 @@ def test_local_position_ned():
     assert t.ground_speed_mps == pytest.approx(math.hypot(0.5, 0.25))
 
 
+@pytest.mark.parametrize("autopilot, radius_m", [(vh.Autopilot.ARDUPILOT, 6378137.0), (vh.Autopilot.PX4, 6371000.0),
+                                                 (vh.Autopilot.GENERIC, None)])
+def test_local_positions_are_turned_from_the_autopilots_sphere_into_wgs84_metres(autopilot, radius_m):
+    """A point 300 m north and 350 m east of the origin on the WGS84 ellipsoid, as the autopilot's local frame
+    puts it: latitude and longitude differences times its sphere's radius (ArduPilot's LOCATION_SCALING_FACTOR,
+    PX4's CONSTANTS_RADIUS_OF_EARTH); a generic autopilot's is taken as it is."""
+    origin = Geodetic(37.79248, -122.39745, 0.0)
+    point = ned_to_geodetic(LocalNED(300.0, 350.0, 0.0), origin)
+    if radius_m is None:
+        x, y = 300.0, 350.0
+    else:
+        x = math.radians(point.lat_deg - origin.lat_deg) * radius_m
+        y = math.radians(point.lon_deg - origin.lon_deg) * radius_m * math.cos(math.radians(origin.lat_deg))
+    assert radius_m is None or abs(x - 300.0) > 0.5  # the frames differ by more than half a metre here
+    msg = roundtrip(lambda e: e.local_position_ned_encode(1500, x, y, -5.0, 0.0, 0.0, 0.0))
+    t = vh.telemetry_from_local_position_ned(vh.Telemetry(autopilot=autopilot, origin=origin), msg, 0.0)
+    assert (t.north_m, t.east_m) == (pytest.approx(300.0, abs=0.05), pytest.approx(350.0, abs=0.05))  # 2nd order
+
+
 def test_attitude_heading_wraps_to_positive():
     msg = roundtrip(lambda e: e.attitude_encode(0, 0.1, -0.2, -math.pi / 2, 0, 0, 0))
     t = vh.telemetry_from_attitude(vh.Telemetry(), msg, 0.0)

@@ -21,6 +21,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from skyroute import vehicle as vh
+from skyroute.vehicle.telemetry import local_scale
 
 
 class FakeAutopilot:
@@ -568,6 +569,12 @@ def test_without_the_right_key_nothing_gets_through(fake):
 
 
 # -------------------------------------------------------------------------------------------- flight actions
+def sent_ne(v, north_m: float, east_m: float):
+    """What the client sends for a local point: true metres in the autopilot's own local metres."""
+    scale_n, scale_e = local_scale(v.telemetry)
+    return pytest.approx(north_m * scale_n, abs=1e-4), pytest.approx(east_m * scale_e, abs=1e-4)
+
+
 def test_px4_prepare_flight_streams_setpoints_before_the_mode_switch(fake, connect):
     ap = fake()
     v = connect(ap.port)
@@ -589,7 +596,7 @@ def test_px4_prepare_flight_streams_setpoints_before_the_mode_switch(fake, conne
     stamps_ms = [m.time_boot_ms for m in recent()]
     assert sorted(b - a for a, b in zip(stamps_ms, stamps_ms[1:]))[len(stamps_ms) // 2 - 1] <= 100
     sp = recent()[-1]
-    assert (sp.x, sp.y, sp.z, sp.yaw) == (10.0, -5.0, -20.0, pytest.approx(1.0))
+    assert (sp.x, sp.y, sp.z, sp.yaw) == (*sent_ne(v, 10.0, -5.0), -20.0, pytest.approx(1.0))
     assert sp.coordinate_frame == mavlink.MAV_FRAME_LOCAL_NED and sp.type_mask == vh.TYPE_MASK_POSITION_YAW
     v.land()
     assert ap.commands(mavlink.MAV_CMD_NAV_LAND)
@@ -607,19 +614,19 @@ def test_velocity_feed_forward_is_sent_then_dropped_when_not_renewed(fake, conne
     v.goto_local(10.0, -5.0, -20.0, yaw_rad=1.0, velocity_ned=(3.0, 4.0, -1.0))
 
     def new_target():
-        return [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == 10.0]
+        return [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == sent_ne(v, 10.0, 0.0)[0]]
 
     assert wait_until(lambda: new_target(), 5.0)
     sp = new_target()[0]  # the first send after goto_local: its velocity is fresh
     first_ms = sp.time_boot_ms
     assert sp.type_mask == vh.TYPE_MASK_POSITION_VELOCITY_YAW
-    assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (10.0, -5.0, -20.0, 3.0, 4.0, -1.0)
+    assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (*sent_ne(v, 10.0, -5.0), -20.0, 3.0, 4.0, -1.0)
     # a stalled client: a setpoint the client sent (by its own stamp) more than the 0.3 s after that first one
     # keeps the position, loses the velocity
     assert wait_until(lambda: new_target()[-1].time_boot_ms > first_ms + 350, 5.0)
     sp = new_target()[-1]
     assert sp.type_mask == vh.TYPE_MASK_POSITION_YAW
-    assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (10.0, -5.0, -20.0, 0.0, 0.0, 0.0)
+    assert (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz) == (*sent_ne(v, 10.0, -5.0), -20.0, 0.0, 0.0, 0.0)
 
 
 def test_acceleration_feed_forward_goes_with_the_velocity_and_is_dropped_with_it(fake, connect):
@@ -630,7 +637,7 @@ def test_acceleration_feed_forward_goes_with_the_velocity_and_is_dropped_with_it
     v.goto_local(12.0, -5.0, -20.0, yaw_rad=1.0, velocity_ned=(3.0, 4.0, 0.0), accel_ned=(2.5, 3.25, 0.0))
 
     def new_target():
-        return [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == 12.0]
+        return [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == sent_ne(v, 12.0, 0.0)[0]]
 
     assert wait_until(lambda: new_target(), 5.0)
     sp = new_target()[0]
@@ -642,8 +649,9 @@ def test_acceleration_feed_forward_goes_with_the_velocity_and_is_dropped_with_it
     assert sp.type_mask == vh.TYPE_MASK_POSITION_YAW
     assert (sp.vx, sp.vy, sp.afx, sp.afy) == (0.0, 0.0, 0.0, 0.0)
     v.goto_local(13.0, -5.0, -20.0, yaw_rad=1.0, accel_ned=(2.4, 3.2, 0.0))  # no velocity: no acceleration either
-    assert wait_until(lambda: [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == 13.0], 5.0)
-    sp = [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == 13.0][0]
+    at_13 = sent_ne(v, 13.0, 0.0)[0]
+    assert wait_until(lambda: [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == at_13], 5.0)
+    sp = [m for m in ap.of_type("SET_POSITION_TARGET_LOCAL_NED") if m.x == at_13][0]
     assert sp.type_mask == vh.TYPE_MASK_POSITION_YAW and (sp.afx, sp.afy) == (0.0, 0.0)
 
 

@@ -42,7 +42,7 @@ from .sensors import SensorFeed
 from .statustext import StatusTextAssembler, refusal_reason
 from .streams import ARDUPILOT_GROUPS, StreamKeeper
 from .targets import TargetFeed
-from .telemetry import Autopilot, Telemetry, is_autopilot_heartbeat, update_telemetry, with_statustext
+from .telemetry import Autopilot, Telemetry, is_autopilot_heartbeat, local_scale, update_telemetry, with_statustext
 from .transport import Transport
 
 log = logging.getLogger(__name__)
@@ -423,9 +423,10 @@ class MavlinkLink:
             mask = TYPE_MASK_POSITION_VELOCITY_YAW if accel is None else TYPE_MASK_POSITION_VELOCITY_ACCEL_YAW
         vn, ve, vd = (0.0, 0.0, 0.0) if velocity is None else velocity
         an, ae, ad = (0.0, 0.0, 0.0) if accel is None else accel
+        scale_n, scale_e = local_scale(self.telemetry)  # true metres -> the autopilot's local metres
         self._send(mavlink.MAVLink_set_position_target_local_ned_message(
             boot_ms, *self._target, mavlink.MAV_FRAME_LOCAL_NED, mask,
-            sp.north_m, sp.east_m, sp.down_m, vn, ve, vd, an, ae, ad, sp.yaw_rad, 0))
+            sp.north_m * scale_n, sp.east_m * scale_e, sp.down_m, vn, ve, vd, an, ae, ad, sp.yaw_rad, 0))
 
     def _send_loop(self) -> None:
         period = 1.0 / self.setpoint_rate_hz
@@ -548,7 +549,7 @@ class MavlinkLink:
                                     heading_time_s=t.attitude_time_s, yaw_rate_rad_s=t.yaw_rate_rad_s,
                                     horizontal_accuracy_m=t.horizontal_accuracy_m)
             elif mtype in TargetFeed.MESSAGES:
-                self.targets.handle(msg, now)
+                self.targets.handle(msg, now, local_scale(self._telemetry))
             else:
                 self._telemetry = update_telemetry(self._telemetry, msg, now)
                 if mtype in ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE"):  # stamped, from boot on

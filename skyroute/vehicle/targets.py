@@ -29,8 +29,10 @@ class TargetSighting:
     received_s: float
 
 
-def sighting_from_landing_target(msg, received_s: float) -> TargetSighting | None:
-    """LANDING_TARGET -> :class:`TargetSighting`, or None when it gives no local position.
+def sighting_from_landing_target(msg, received_s: float, scale_ne: tuple[float, float] = (1.0, 1.0)
+                                 ) -> TargetSighting | None:
+    """LANDING_TARGET -> :class:`TargetSighting`, or None when it gives no local position; ``scale_ne`` the
+    autopilot's local metres per true metre (:func:`~.telemetry.local_scale`).
 
     >>> m = mavlink.MAVLink_landing_target_message(3_000_000, 2, mavlink.MAV_FRAME_LOCAL_NED, 0.1, 0.0, 5.1, 0.5,
     ...     0.5, x=12.0, y=-4.0, z=0.0, q=[1, 0, 0, 0], type=3, position_valid=1)
@@ -41,8 +43,8 @@ def sighting_from_landing_target(msg, received_s: float) -> TargetSighting | Non
     if not getattr(msg, "position_valid", 0) or msg.frame != mavlink.MAV_FRAME_LOCAL_NED:
         return None
     distance = float(msg.distance) if msg.distance > 0 else float("nan")
-    return TargetSighting(int(msg.target_num), float(msg.x), float(msg.y), float(msg.z), distance,
-                          msg.time_usec * 1e-6, received_s)
+    return TargetSighting(int(msg.target_num), float(msg.x) / scale_ne[0], float(msg.y) / scale_ne[1], float(msg.z),
+                          distance, msg.time_usec * 1e-6, received_s)
 
 
 class TargetFeed:
@@ -57,11 +59,11 @@ class TargetFeed:
         self.unplaced = 0
         self.sightings = 0
 
-    def handle(self, msg, received_s: float) -> bool:
+    def handle(self, msg, received_s: float, scale_ne: tuple[float, float] = (1.0, 1.0)) -> bool:
         """Translate and queue ``msg`` if it is a LANDING_TARGET; True if it was one."""
         if msg.get_type() not in self.MESSAGES:
             return False
-        sighting = sighting_from_landing_target(msg, received_s)
+        sighting = sighting_from_landing_target(msg, received_s, scale_ne)
         with self._lock:
             if sighting is None:
                 self.unplaced += 1

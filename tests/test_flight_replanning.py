@@ -160,3 +160,47 @@ def test_single_sectors_read_at_one_place_make_one_layer_update_and_whole_scans_
              for _ in range(2)]
     Sensing(SensingVehicle(*eight, *again, *worse, *whole), Map(), lambda: 0.0).drain((0.0, 0.0), (0.0, 0.0))
     assert calls == [(8, 0.6), (1, 0.6), (1, 3.0), (72, 0.0), (72, 0.0)]
+
+
+def test_readings_beyond_the_horizon_say_only_that_nothing_stands_within_it():
+    """ArduCopter SITL's proximity sensor reads up to 200 m: a scan that far cost 18 ms a sector, and eight
+    sectors a cycle held up the setpoints for seconds."""
+    calls = []
+
+    class Map:
+        def add_scan(self, north_m, east_m, bearings, half, distances, max_range_m, *rest):
+            calls.append((distances.tolist(), max_range_m))
+
+    far = FakeScan(bearings_rad=np.zeros(3), distances_m=np.array([12.0, 199.9, np.nan]), max_range_m=200.0)
+    near = FakeScan(distances_m=np.array([25.0]), max_range_m=30.0)
+    sensing = Sensing(SensingVehicle(far, near), Map(), lambda: 0.0)
+    sensing.drain((0.0, 0.0), (0.0, 0.0))
+    assert sensing.horizon_m == 60.0
+    (d_far, range_far), (d_near, range_near) = calls
+    assert d_far[:2] == [12.0, math.inf] and math.isnan(d_far[2]) and range_far == 60.0
+    assert (d_near, range_near) == ([25.0], 30.0)  # a sensor shorter than the horizon is taken as it is
+
+
+def test_readings_that_come_faster_than_the_layer_takes_them_are_dropped_oldest_first(caplog):
+    """However slow the layer, one poll spends about the budget on the readings, the newest, and counts the rest:
+    the setpoints go out."""
+    import time
+
+    taken = []
+
+    class SlowMap:
+        def add_scan(self, north_m, east_m, *rest):
+            time.sleep(0.005)
+            taken.append(north_m)
+
+    vehicle = SensingVehicle(FakeScan((0.0, 0.0)))
+    sensing = Sensing(vehicle, SlowMap(), lambda: 0.0)
+    sensing.drain((0.0, 0.0), (0.0, 0.0))  # learns the cost: at least 5 ms a reading
+    vehicle.scans = [FakeScan((float(k), 0.0)) for k in range(1, 201)]
+    taken.clear()
+    started = time.perf_counter()
+    sensing.drain((0.0, 0.0), (0.0, 0.0))
+    assert time.perf_counter() - started < 0.5  # all 200 would take at least a second
+    assert 1 <= len(taken) <= 20 and taken == [float(k) for k in range(201 - len(taken), 201)]
+    assert sensing.dropped == 200 - len(taken)
+    assert "keeping the newest" in caplog.text

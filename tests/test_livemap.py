@@ -552,3 +552,28 @@ def test_the_viewpoint_looks_at_the_least_certain_part_of_a_closure():
     live.hit_count[30, 30:] = 20  # as sure as the west half: straight on
     view = Replanner(live, (55.5, 10.5), ALT).viewpoint((10.5, 10.5))
     assert view is not None and view[1] < 20.0
+
+
+@pytest.mark.parametrize("heading_deg, bearing_error_deg", [(0.0, 0.0), (30.0, 0.0), (12.0, 15.0)])
+def test_a_single_sector_looks_only_at_its_wedge_and_changes_the_layer_as_the_whole_square_would(
+        heading_deg, bearing_error_deg, monkeypatch):
+    """ArduPilot's sectors come one per message: each scan looks at its wedge's box, not the square round the
+    sensor (a fifth of the cells), and leaves the layer exactly as the square would."""
+    truth = np.vstack([STALE, WALL])
+    wedge, _ = _live()
+    square, _ = _live()
+    monkeypatch.setattr(square, "_wedge_window", lambda p, centres, half, reach: square._window(p[0], p[1], reach))
+    looked = []
+    window = wedge._wedge_window
+    monkeypatch.setattr(wedge, "_wedge_window", lambda *a: looked.append(window(*a)) or looked[-1])
+    for north in np.arange(-40.0, 12.0, 1.5):
+        p = (north, 0.5 + 0.3 * math.sin(north))
+        bearings, half, d = _scan(truth, p, 8, heading_rad=math.radians(heading_deg))
+        for b, v in zip(bearings, d):
+            for live in (wedge, square):
+                live.add_scan(*p, np.array([b]), half, np.array([v]), 30.0, math.radians(bearing_error_deg))
+    assert wedge.hits.sum() > 5  # the wall was found
+    for name in ("hits", "hit_count", "free_count", "known", "once_dropped", "grid"):
+        assert np.array_equal(getattr(wedge, name), getattr(square, name)), name
+    cells = np.mean([(i1 - i0) * (j1 - j0) for i0, i1, j0, j1 in looked])
+    assert cells < (0.35 if bearing_error_deg else 0.3) * 63 ** 2  # the square: 2 x 30 m + 3 cells a side

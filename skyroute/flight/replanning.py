@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -41,6 +42,14 @@ PX4_RESPONSE_S = 0.6
 #: The sight cap's floor (m/s): slow enough to stop within 0.2 m, so the vehicle creeps on where nothing ahead is
 #: seen free rather than stand still (:meth:`ReplanningMixin._sight_cap_mps`).
 SIGHT_CREEP_MPS = 0.5
+#: The live layer looks this far (m) at most: a longer reading says only that nothing stands within it. A scan's
+#: cost goes with the square of its range: ArduCopter SITL's proximity sensor (PRX1_TYPE 10) reads up to 200 m,
+#: 18 ms per 45 degree sector over SF at eight sectors a cycle, and the mission fell seconds behind its setpoints.
+#: 60 m is more than the braking distance of 1.5x ArduCopter's default cruise (10 m/s), which the sight cap looks at.
+SENSING_HORIZON_M = 60.0
+#: The most (s, wall clock) one poll spends on the readings queued since the last: when they come faster than the
+#: layer takes them, the oldest are dropped (counted and logged) rather than holding up the setpoints.
+DRAIN_BUDGET_S = 0.1
 
 
 class Blockage(Protocol):
@@ -249,6 +258,10 @@ class Sensing:
     low_scans: int = 0
     records: list[ReplanRecord] = field(default_factory=list)
     reopened: bool = False  # the map dropped observed obstacles as noise since the mission last looked
+    horizon_m: float = SENSING_HORIZON_M
+    budget_s: float = DRAIN_BUDGET_S
+    dropped: int = 0  # readings dropped unread: they came faster than the layer took them
+    _cost_s: float = 0.0  # wall seconds per reading, lately (an exponential average)
     _oldest_s: float = math.nan
     _fix_logged_s: float = -math.inf
 
@@ -272,6 +285,8 @@ class Sensing:
         got = readings()
         if not got or self.obstacles is None:
             return bool(got)
+        got = self._within_budget(got)
+        started = time.perf_counter()
         n, e = float(position_ne[0]), float(position_ne[1])
         offset = None if offset_ne is None else (float(offset_ne[0]), float(offset_ne[1]))
         batch: list = []  # sectors read at one place (ArduPilot sends one message per sector): one layer update
@@ -296,19 +311,23 @@ class Sensing:
                     self.keep_off.observe(r)
                 at = getattr(r, "local_ne", None)
                 bearings = np.asarray(r.bearings_rad, float)
+                distances, max_range = np.asarray(r.distances_m, float), float(r.max_range_m)
+                if max_range > self.horizon_m:  # farther than the horizon reads as nothing within it
+                    distances = np.where(distances >= self.horizon_m, np.inf, distances)
+                    max_range = self.horizon_m
                 pos_err = float(getattr(r, "position_error_m", 0.0))
                 if at is None or offset is None:
                     sn, se = n, e  # the mission's map position: corrected already
                 else:
                     sn, se = at[0] + offset[0], at[1] + offset[1]
                     if self.fix is not None:
-                        sn, se, pos_err = self._corrected(r, sn, se, bearings, pos_err)
-                key = (sn, se, float(r.half_width_rad), float(r.max_range_m),
-                       float(getattr(r, "bearing_error_rad", 0.0)), pos_err)
+                        sn, se, pos_err = self._corrected(r, sn, se, bearings, distances, max_range, pos_err)
+                key = (sn, se, float(r.half_width_rad), max_range, float(getattr(r, "bearing_error_rad", 0.0)),
+                       pos_err)
                 if batch and (batch[0][:6] != key or len(bearings) != 1
                               or any(float(b[6][0]) == float(bearings[0]) for b in batch)):
                     flush()  # a whole scan, another place, or the same sector again: its own update
-                batch.append((*key, bearings, np.asarray(r.distances_m, float)))
+                batch.append((*key, bearings, distances))
                 if len(bearings) != 1:
                     flush()
                 self.scans += 1
@@ -321,15 +340,30 @@ class Sensing:
             if self.keep_off is not None:
                 self.keep_off.observe_height(r)
         flush()
+        cost = (time.perf_counter() - started) / len(got)
+        self._cost_s = cost if self._cost_s <= 0 else self._cost_s + 0.2 * (cost - self._cost_s)
         return True
 
-    def _corrected(self, r, north_m: float, east_m: float, bearings: np.ndarray, position_error_m: float):
+    def _within_budget(self, got: list) -> list:
+        """The newest of ``got`` that the layer takes within :attr:`budget_s` at its recent cost per reading;
+        the older ones are dropped (counted in :attr:`dropped`, logged when dropping starts)."""
+        room = len(got) if self._cost_s <= 0 else max(int(self.budget_s / self._cost_s), 1)
+        if len(got) <= room:
+            return got
+        if not self.dropped:
+            log.warning("sensor readings come faster than the live map takes them (%.1f ms each): keeping the "
+                        "newest %d of %d queued", self._cost_s * 1e3, room, len(got))
+        self.dropped += len(got) - room
+        return got[-room:]
+
+    def _corrected(self, r, north_m: float, east_m: float, bearings: np.ndarray, distances_m: np.ndarray,
+                   max_range_m: float, position_error_m: float):
         """A stamped reading's map position corrected by the fix (matched first: a whole scan, or ArduPilot's
         sectors gathered by the fix over a few cycles), and how far off it may still be."""
         fix = self.fix
         t = float(getattr(r, "time_s", math.nan))
         fix.observe(t if math.isfinite(t) else self.clock(), north_m, east_m, bearings, float(r.half_width_rad),
-                    np.asarray(r.distances_m, float), float(r.max_range_m), position_error_m,
+                    distances_m, max_range_m, position_error_m,
                     bearing_error_rad=float(getattr(r, "bearing_error_rad", 0.0)))
         cn, ce = fix.correction_ne
         bound = fix.bound_m
@@ -385,6 +419,9 @@ class Sensing:
             where = f" within ({lo[0]:.0f}..{hi[0]:.0f} N, {lo[1]:.0f}..{hi[1]:.0f} E)"
         log.info("sensing: %d scans (%d from below the altitude, dropped), %d observed obstacle cells%s, %d replans",
                  self.scans, self.low_scans, len(cells), where, len(self.records))
+        if self.dropped:
+            log.warning("sensing: %d readings dropped unread (they came faster than the live map took them)",
+                        self.dropped)
         if self.fix is not None:
             log.info("position fix: %s", self.fix.describe())
 

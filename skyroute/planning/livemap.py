@@ -263,6 +263,25 @@ class LiveMap:
         r = int(math.ceil(reach_m)) + 1
         return max(i - r, 0), min(i + r + 1, n), max(j - r, 0), min(j + r + 1, m)
 
+    def _wedge_window(self, p: np.ndarray, centres: np.ndarray, half_width: float,
+                      reach_m: float) -> tuple[int, int, int, int]:
+        """The window round the wedges ``centres +- half_width`` (rad) out to ``reach_m`` from ``p``: all round
+        when they cover the circle, else their bounding box (a cell to spare). ArduPilot sends one 45 degree
+        sector per message: its wedge's box is about a fifth of the square round the sensor, and a scan's cost
+        goes with the cells it looks at."""
+        full = self._window(float(p[0]), float(p[1]), reach_m)
+        if len(centres) == 0 or len(centres) * 2.0 * half_width >= _TWO_PI - 1e-6:
+            return full
+        steps = max(2, int(math.ceil(2.0 * half_width / math.radians(2.0))) + 1)
+        angles = (centres[:, None] + np.linspace(-half_width, half_width, steps)[None, :]).ravel()
+        north = np.concatenate([[p[0]], p[0] + reach_m * np.cos(angles)])
+        east = np.concatenate([[p[1]], p[1] + reach_m * np.sin(angles)])
+        i0 = int(math.floor(north.min() - self.north_offset)) - 1
+        i1 = int(math.floor(north.max() - self.north_offset)) + 2
+        j0 = int(math.floor(east.min() - self.east_offset)) - 1
+        j1 = int(math.floor(east.max() - self.east_offset)) + 2
+        return max(i0, full[0]), min(i1, full[1]), max(j0, full[2]), min(j1, full[3])
+
     def _sector_of(self, bearings: np.ndarray, centres: np.ndarray, half_width: float) -> np.ndarray:
         """Sector index of each bearing (-1 when in none)."""
         k = len(centres)
@@ -335,7 +354,7 @@ class LiveMap:
         half = float(half_width_rad)
         self.wide_sectors |= half > FINE_HALF_RAD
         p = np.array([north_m, east_m], dtype=float)
-        window = self._window(north_m, east_m, max_range_m)
+        window = self._wedge_window(p, centres, half + max(float(bearing_error_rad), 0.0), max_range_m)
         i0, i1, j0, j1 = window
         self.scans += 1
         if i0 >= i1 or j0 >= j1:
@@ -364,6 +383,8 @@ class LiveMap:
         before = self.hits.copy()
         if len(hit_cells):
             hi, hj = hit_cells[:, 0], hit_cells[:, 1]
+            i0, i1 = min(i0, int(hi.min())), max(i1, int(hi.max()) + 1)  # an arc's cell at a wedge's rim
+            j0, j1 = min(j0, int(hj.min())), max(j1, int(hj.max()) + 1)
             self.hit_count[hi, hj] = np.minimum(self.hit_count[hi, hj].astype(np.int64) + 1, 65535)
             self.known[hi, hj] = True
         sub = (slice(i0, i1), slice(j0, j1))

@@ -151,12 +151,14 @@ class ArduCopterSitl:
     """ArduCopter SITL in a temporary directory: ``client`` (SERIAL1) and ``gcs`` (SERIAL2) TCP connections.
 
     Boots without waiting for a client (``--serial0 tcp:0``), from a wiped eeprom unless ``wipe`` is False.
-    ``home`` is (lat, lon, alt AMSL m); ``extra`` more command-line arguments.
+    ``home`` is (lat, lon, alt AMSL m); ``params`` defaults beyond copter.parm (e.g. ``PRX1_TYPE``: read at boot);
+    ``extra`` more command-line arguments. ``serial0``: the free port (SERIAL0) for a third connection.
     """
 
     def __init__(self, home: tuple[float, float, float], *, speedup: float = 5.0, wipe: bool = True,
-                 instances=range(1, 40), extra: tuple[str, ...] = ()):
+                 instances=range(1, 40), extra: tuple[str, ...] = (), params: dict[str, float] | None = None):
         self.home, self.speedup, self.wipe, self.extra = home, speedup, wipe, extra
+        self.params = dict(params or {})
         self.instance, self._reservation = _reserve(
             "arducopter", instances, lambda n: all(_tcp_free(5760 + 10 * n + k) for k in (0, 2, 3)))
         if self.instance is None:
@@ -172,11 +174,20 @@ class ArduCopterSitl:
     def gcs(self) -> str:
         return f"tcp:127.0.0.1:{5763 + 10 * self.instance}"
 
+    @property
+    def serial0(self) -> str:
+        return f"tcp:127.0.0.1:{5760 + 10 * self.instance}"
+
     def start(self) -> ArduCopterSitl:
         sitl = shared_dir() / "sitl"
         lat, lon, alt = self.home
+        defaults = [str(sitl / "copter.parm")]
+        if self.params:
+            extra = self.dir / "extra.parm"
+            extra.write_text("".join(f"{name} {value:g}\n" for name, value in self.params.items()))
+            defaults.append(str(extra))
         cmd = [str(sitl / "arducopter"), "--model", "+", "--speedup", f"{self.speedup:g}", "--defaults",
-               str(sitl / "copter.parm"), "-I", str(self.instance), "--home", f"{lat:.7f},{lon:.7f},{alt:g},0",
+               ",".join(defaults), "-I", str(self.instance), "--home", f"{lat:.7f},{lon:.7f},{alt:g},0",
                "--serial0", "tcp:0", *(["--wipe"] if self.wipe else []), *self.extra]
         self.log = open(self.dir / "arducopter.log", "w")  # noqa: SIM115 (closed in stop())
         self.proc = subprocess.Popen(cmd, cwd=self.dir, stdout=self.log, stderr=subprocess.STDOUT,
@@ -403,6 +414,52 @@ class Monitor:
         print(f"closest approach {distances[k]:.2f} m at N {points[k, 0]:.1f} E {points[k, 1]:.1f} "
               f"up {points[k, 2]:.1f} m (sample {k + 1} of {len(points)})")
         return float(distances[k])
+
+
+def upload_fence(connection: str, lat0: float, lon0: float, inclusion_ne: np.ndarray,
+                 exclusions_ne: list[np.ndarray], timeout_s: float = 20.0) -> None:
+    """Upload polygon fences (map north, east m round ``lat0, lon0``) over the MAVLink mission protocol
+    (MAV_MISSION_TYPE_FENCE): one inclusion polygon and any exclusion ones. ArduCopter SITL's own proximity sensor
+    (PRX1_TYPE 10) reads them: each sector's distance is found by bisecting its middle ray for a fence breach up to
+    200 m, so an exclusion zone shows only where it runs on past the bisection's test points (a thick block)."""
+    from pymavlink import mavutil
+
+    mav = mavutil.mavlink_connection(connection, source_system=251, autoreconnect=False, retries=10)
+    try:
+        beat = mav.wait_heartbeat(timeout=timeout_s)
+        if beat is None:
+            raise RuntimeError(f"no heartbeat on {connection}")
+        target = beat.get_srcSystem()
+        m = mavutil.mavlink
+        items = []
+        for command, polygon in [(m.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, inclusion_ne),
+                                 *((m.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, p) for p in exclusions_ne)]:
+            for north, east in polygon:
+                lat, lon = to_latlon(float(north), float(east), lat0, lon0)
+                items.append((command, len(polygon), int(round(lat * 1e7)), int(round(lon * 1e7))))
+        mav.mav.mission_count_send(target, 1, len(items), m.MAV_MISSION_TYPE_FENCE)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            msg = mav.recv_match(type=["MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"], blocking=True,
+                                 timeout=1.0)
+            if msg is None:
+                continue
+            if msg.get_type() == "MISSION_ACK":
+                if msg.type != m.MAV_MISSION_ACCEPTED:
+                    raise RuntimeError(f"fence upload refused: MAV_MISSION_RESULT {msg.type}")
+                return
+            command, count, lat, lon = items[msg.seq]
+            mav.mav.mission_item_int_send(target, 1, msg.seq, m.MAV_FRAME_GLOBAL, command, 0, 1, count, 0, 0, 0,
+                                          lat, lon, 0, m.MAV_MISSION_TYPE_FENCE)
+        raise RuntimeError("fence upload: no MISSION_ACK")
+    finally:
+        mav.close()
+
+
+def box_ne(north_m: float, east_m: float, half_north_m: float, half_east_m: float) -> np.ndarray:
+    """The corners (4, 2) of a map box's footprint, north and east m."""
+    return np.array([[north_m - half_north_m, east_m - half_east_m], [north_m - half_north_m, east_m + half_east_m],
+                     [north_m + half_north_m, east_m + half_east_m], [north_m + half_north_m, east_m - half_east_m]])
 
 
 # ------------------------------------------------------------------------------------------- held-out goals

@@ -577,3 +577,27 @@ def test_a_single_sector_looks_only_at_its_wedge_and_changes_the_layer_as_the_wh
         assert np.array_equal(getattr(wedge, name), getattr(square, name)), name
     cells = np.mean([(i1 - i0) * (j1 - j0) for i0, i1, j0, j1 in looked])
     assert cells < (0.35 if bearing_error_deg else 0.3) * 63 ** 2  # the square: 2 x 30 m + 3 cells a side
+
+
+#: A new wall along the street (east 3..4, north 0..60), not across it: flown beside, 4 m west of its face.
+WALL_ALONG = np.array([[30.0, 3.5, 15.0, 30.0, 0.5, 15.0]])
+
+
+def test_a_face_seen_across_wide_sectors_is_marked_on_the_face_not_as_arcs_across_the_street():
+    """ArduPilot's 45 degree wedges beside a wall: the wedge ahead meets the face at its edge, 10.5 m on; its whole
+    arc there lies across the street in front of the vehicle, and a vehicle that slows or hovers (looking again,
+    a viewpoint) confirms it: round a wall's end that closed the way past it, and held-out model missions gave
+    their reachable goals up. Read as one face across the wedges, only the edge point is marked (whole arcs: hit
+    cells 7.5 m off the wall)."""
+    live, _ = _live()
+    truth = np.vstack([STALE, WALL_ALONG])
+    worst = 0.0
+    for north in np.arange(8.0, 38.0, 1.0):
+        p = (north, -1.0)
+        bearings, half, d = _scan(truth, p, 8)
+        for _ in range(3):  # slow: three scans a metre
+            live.add_scan(*p, bearings, half, d, 30.0)
+        hits = live.hit_cells_ne()
+        worst = max(worst, float(_distance_to_boxes(hits, WALL_ALONG).max()) if len(hits) else 0.0)
+    assert len(live.hit_cells_ne()) > 10
+    assert worst <= 3.0  # on the wall, give or take its ends' corners

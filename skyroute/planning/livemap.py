@@ -108,6 +108,40 @@ def _along_face(edge_rad: np.ndarray, far_edge_rad: np.ndarray, range_m: np.ndar
     return np.where(receding & (length > 1e-6) & (disc >= 0.0) & (t >= 0.0) & inside, bearing, np.nan)
 
 
+def _face_edge(reading: dict, centre_of: dict, k: int, side: int, half: float, count: int,
+               d: float) -> float | None:
+    """The bearing (rad) of wedge ``k``'s edge on ``side`` (-1 towards lower indices) when wedge ``k``'s reading
+    ``d`` is one straight face's point there (see :meth:`LiveMap._face_spans`); else None."""
+    def r(j: int) -> float:
+        return reading.get(j % count, math.nan)
+
+    if not r(k + side) < d - NEIGHBOUR_MARGIN_M:  # the neighbour clearly nearer, then falling to the least
+        return None
+    run = [k, k + side]
+    while len(run) <= count // 2 and r(run[-1] + side) <= r(run[-1]):  # equal: the foot at their shared edge
+        run.append(run[-1] + side)
+    if len(run) < 3:  # the foot's wedge and one between at least
+        return None
+    foot, p = run[-1], r(run[-1])
+    if not (math.isfinite(p) and p > 0) or (run[-1] % count) not in centre_of or (k % count) not in centre_of:
+        return None
+
+    def edge_towards_foot(j: int) -> float:
+        return centre_of[k % count] + (j - k) * 2.0 * half + side * half
+
+    nearest = run[-2]  # the foot's bearing from the wedge next to it: its reading is the face at its edge
+    if r(nearest) < p:
+        return None
+    foot_bearing = edge_towards_foot(nearest) + side * math.acos(min(p / r(nearest), 1.0))
+    if abs(float(_wrap(np.array(foot_bearing - centre_of[k % count] - (foot - k) * 2.0 * half)))) > half + 1e-9:
+        return None  # the foot is not in the least wedge: not one face
+    for j in run[:-1]:
+        angle = abs(float(_wrap(np.array(edge_towards_foot(j) - foot_bearing))))
+        if angle >= 0.5 * math.pi - 1e-6 or abs(p / math.cos(angle) - r(j)) > NEIGHBOUR_MARGIN_M:
+            return None
+    return float(edge_towards_foot(k))
+
+
 def _distance_to(cells: np.ndarray) -> np.ndarray:
     """Distance (m, float32) from each 1 m cell's centre to the nearest True cell's centre (0 on them; inf when
     there is none).
@@ -418,8 +452,10 @@ class LiveMap:
         reaches a metre past the end, into the way round it."""
         c, d = centres[unexplained], dist[unexplained]
         lo, hi = c - half, c + half
-        if half > FINE_HALF_RAD or len(c) == 0:
+        if len(c) == 0:
             return lo, hi
+        if half > FINE_HALF_RAD:
+            return self._face_spans(centres, half, dist, unexplained, lo, hi)
         width = 2.0 * half
         count = max(int(round(_TWO_PI / width)), 1)
         index = np.round((centres - centres.min()) / width).astype(np.int64) % count  # neighbours differ by 1
@@ -455,6 +491,37 @@ class LiveMap:
         located = ~left_nearer & ~right_nearer & np.isfinite(corner)
         lo = np.where(located, corner - 0.5 * point, lo)
         hi = np.where(located, corner + 0.5 * point, hi)
+        return lo, hi
+
+    @staticmethod
+    def _face_spans(centres: np.ndarray, half: float, dist: np.ndarray, unexplained: np.ndarray,
+                    lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Wide sectors (ArduPilot's 45 degrees): an unexplained reading ``d`` is the nearest point of its wedge,
+        somewhere on the arc at ``d``; marked whole, that arc lies across the street in front of a wall seen
+        obliquely and round a wall's end (from 5.5 m beside a wall a wedge's edge meets it 14.4 m on, and the arc
+        there closed the way past its end: three held-out model missions gave their reachable goals up).
+
+        One straight face seen across several wedges is recognised instead: readings falling towards one side to
+        a least one (the wedge holding the face's foot, at distance ``p``); the next wedge's reading at its edge
+        towards the foot gives the foot's bearing, every wedge of the run between must read the face's distance at
+        its own edge towards the foot, and this wedge's reading must be the face's distance at its edge
+        (``p / cos``, within a neighbour margin). Then the wedge's nearest point is that edge point, and only it
+        is marked: anything else in the wedge stands no nearer, and shows once it is the nearest. A run that is
+        not one face (another obstacle nearer in a wedge, a corner) fails a check and keeps the whole arc. The
+        check uses angles between the wedges only, so a heading error turns the point with the wedges."""
+        width = 2.0 * half
+        count = max(int(round(_TWO_PI / width)), 1)
+        index = np.round((centres - centres.min()) / width).astype(np.int64) % count
+        reading = dict(zip(index.tolist(), dist.tolist()))
+        centre_of = {int(k): float(v) for k, v in zip(index.tolist(), centres.tolist())}
+        lo, hi = lo.copy(), hi.copy()
+        for n, (k, d) in enumerate(zip(index[unexplained].tolist(), dist[unexplained].tolist())):
+            for side in (-1, 1):
+                edge = _face_edge(reading, centre_of, int(k), side, half, count, float(d))
+                if edge is not None:
+                    point = min(EDGE_POINT_ARC_M / max(d, 1.0), 0.5 * half)
+                    lo[n], hi[n] = (edge, edge + point) if side < 0 else (edge - point, edge)
+                    break
         return lo, hi
 
     def _arc_cells(self, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, dist: np.ndarray,

@@ -79,7 +79,8 @@ class ScanUpdate:
     changed: bool
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
+def _wrap(angle):
+    """Angles (rad, a float or an array) into [-pi, pi)."""
     return (angle + math.pi) % _TWO_PI - math.pi
 
 
@@ -133,10 +134,10 @@ def _face_edge(reading: dict, centre_of: dict, k: int, side: int, half: float, c
     if r(nearest) < p:
         return None
     foot_bearing = edge_towards_foot(nearest) + side * math.acos(min(p / r(nearest), 1.0))
-    if abs(float(_wrap(np.array(foot_bearing - centre_of[k % count] - (foot - k) * 2.0 * half)))) > half + 1e-9:
+    if abs(_wrap(foot_bearing - centre_of[k % count] - (foot - k) * 2.0 * half)) > half + 1e-9:
         return None  # the foot is not in the least wedge: not one face
     for j in run[:-1]:
-        angle = abs(float(_wrap(np.array(edge_towards_foot(j) - foot_bearing))))
+        angle = abs(_wrap(edge_towards_foot(j) - foot_bearing))
         if angle >= 0.5 * math.pi - 1e-6 or abs(p / math.cos(angle) - r(j)) > NEIGHBOUR_MARGIN_M:
             return None
     return float(edge_towards_foot(k))

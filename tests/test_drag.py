@@ -44,27 +44,48 @@ def test_drag_is_fitted_through_turns_speed_changes_and_noise():
     assert d.k_1_s == pytest.approx(0.7, abs=0.03)
 
 
-def test_no_drag_is_claimed_before_enough_level_flight_at_speed():
+def test_no_drag_is_claimed_before_enough_level_flight_at_varied_speeds():
     d = dg.DragEstimate(min_time_s=3.0)
-    roll, pitch = lean_for(8.0, 0.0, 0.0)
     for _ in range(100):
-        d.update(roll, pitch, 0.0, (2.0, 0.0, 0.0), 0.1)  # too slow: the lean is mostly noise there
-        d.update(roll, pitch, 0.0, (8.0, 0.0, 2.5), 0.1)  # climbing: the thrust is not holding it level
-        d.update(math.nan, pitch, 0.0, (8.0, 0.0, 0.0), 0.1)  # no attitude
+        d.update(*lean_for(0.5, 0.0, 0.0), 0.0, (0.5, 0.0, 0.0), 0.1)  # too slow: the lean is mostly noise there
+        d.update(*lean_for(8.0, 0.0, 0.0), 0.0, (8.0, 0.0, 2.5), 0.1)  # climbing: the thrust is not holding it level
+        d.update(math.nan, 0.0, 0.0, (8.0, 0.0, 0.0), 0.1)  # no attitude
     assert d.k_1_s == 0.0
-    for _ in range(29):
-        d.update(roll, pitch, 0.0, (8.0, 0.0, 0.0), 0.1)
-    assert d.k_1_s == 0.0  # 2.9 s
-    d.update(roll, pitch, 0.0, (8.0, 0.0, 0.0), 0.1)
+    for _ in range(100):  # 10 s at one speed: a drag of 1/s, or a headwind of 8 m/s and a drag of 0.5/s ...
+        d.update(*lean_for(8.0, 0.0, 0.0), 0.0, (8.0, 0.0, 0.0), 0.1)
+    assert d.k_1_s == 0.0
+    roll, pitch = lean_for(4.0, 0.0, 0.0)
+    d.update(roll, pitch, 0.0, (4.0, 0.0, 0.0), 0.0)  # a gap: no change of velocity to take from the lean
+    for _ in range(12):  # ... until the speed changes: 1.2 s at 4 m/s, leaning half as much (spread 16)
+        d.update(roll, pitch, 0.0, (4.0, 0.0, 0.0), 0.1)
+    assert d.k_1_s == 0.0
+    for _ in range(6):
+        d.update(roll, pitch, 0.0, (4.0, 0.0, 0.0), 0.1)
     assert d.k_1_s == pytest.approx(1.0)
 
 
 def test_a_vehicle_leaning_backwards_claims_no_negative_drag():
     d = dg.DragEstimate()
-    roll, pitch = lean_for(-2.0, 0.0, 0.0)
-    for _ in range(50):
-        d.update(roll, pitch, 0.0, (8.0, 0.0, 0.0), 0.1)
+    for speed in (8.0, 4.0, 8.0, 4.0):
+        roll, pitch = lean_for(-0.25 * speed, 0.0, 0.0)
+        d.update(roll, pitch, 0.0, (speed, 0.0, 0.0), 0.0)  # a gap between the speeds
+        for _ in range(30):
+            d.update(roll, pitch, 0.0, (speed, 0.0, 0.0), 0.1)
     assert d.k_1_s == 0.0
+
+
+def test_a_strong_wind_along_the_only_leg_flown_does_not_pass_for_drag():
+    # drag 0.3/s, a 15 m/s wind from the east; flown east into it, speeding up to 4 m/s at 1 m/s^2 and holding it:
+    # the lean is mostly the wind's (a fit pulled towards no wind claimed 1.65/s from such a leg in our sim)
+    rng = np.random.default_rng(7)
+    d = dg.DragEstimate()
+    wind, v = np.array([0.0, -15.0]), np.zeros(2)
+    for step in range(400):
+        dv = np.array([0.0, min(0.1, 4.0 - v[1])])
+        thrust = 0.3 * (v + dv - wind) + dv / 0.1 + rng.normal(0.0, 0.3, 2)
+        v = v + dv
+        d.update(*lean_for(*thrust, math.pi / 2), math.pi / 2, (v[0], v[1], 0.0), 0.1)
+        assert d.k_1_s == 0.0 or d.k_1_s == pytest.approx(0.3, abs=0.1), step
 
 
 def test_steer_sends_the_drag_lean_along_the_feedforward_velocity():

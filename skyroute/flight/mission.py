@@ -59,6 +59,7 @@ from .protocol import ClearanceFn, Limits, PlanFn, ProgressFn, ReturnLineFn, Sur
 from .recovery import RecoveryMixin, _Abort, _Resumed
 from .replanning import ObstacleMap, PositionFix, ReplanningMixin, Sensing, _Blocked, _Rerouted
 from .states import AIRBORNE_STATES, TRANSITIONS, IllegalTransition, MissionEvent, MissionState, next_state
+from .tilt import TiltBudget, TiltPlan
 
 __all__ = [  # the mission's vocabulary, importable from here
     "TRANSITIONS", "ArmingFailed", "ControlTakenOver", "FlightAborted", "GoalUnreachableInFlight",
@@ -234,6 +235,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.speeds = preflight.Speeds(cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps)
         self.lead_s, self.velocity_lag_s, self.brake_lag_s = lead_s, velocity_lag_s, 0.0
         self.drag, self._drag_at, self._drag_told = DragEstimate(), math.nan, False
+        # what the tilt limit leaves once the wind's drag is held (.tilt): the schedule within it
+        self.tilt, self._tilt_plan, self._tilt_binds = TiltBudget(math.inf), None, False
+        self._calm_speeds = self.speeds
         self.poll_s, self.track_interval_s = poll_s, track_interval_s
         self.clock, self.sleep = clock, sleep
         # what the sensor reads closer than 80 % of the margin is kept off by shifting the route (.keepoff): a
@@ -560,7 +564,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self._ground_amsl_m = ground
         self._say(preflight.describe_offset(self._offset, ground, surface if math.isfinite(surface) else 0.0))
         self.limits = self.vehicle.flight_limits()
-        self.speeds = preflight.fit_speeds(self.speeds, self.limits)
+        self.speeds = self._calm_speeds = preflight.fit_speeds(self.speeds, self.limits)
+        self.tilt = TiltBudget(math.radians(float(getattr(self.limits, "max_tilt_deg", math.inf))))
         response_s = float(getattr(self.limits, "response_s", math.nan))
         if math.isfinite(response_s):  # brake as early as the autopilot is slow to slow down
             self.brake_lag_s = max(self.brake_lag_s, response_s)
@@ -792,7 +797,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                            accel_mps2=s.accel_mps2, lateral_accel_mps2=s.lateral_accel_mps2,
                            vertical_mps=s.vertical_mps, room_fn=self.room_fn,
                            room_m=self.replan_margin_m,
-                           max_cut_m=0.5 * self.replan_margin_m if self.sensing.active else math.inf)
+                           max_cut_m=0.5 * self.replan_margin_m if self.sensing.active else math.inf,
+                           speed_cap_fn=self._tilt_plan.caps_mps if self._tilt_binds else None)
 
     def _obstacles_version(self) -> int:
         """The observed obstacles' version (``ObstacleMap.version``; 0 without one)."""
@@ -869,7 +875,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                 response_s=max(self.brake_lag_s, self.velocity_lag_s), accel_mps2=s.accel_mps2)
             delay_s = rate * self.poll_s
             ahead_s = self.lead_s + delay_s
-            drag_1_s = self._drag_1_s(t, velocity, rate, now)
+            drag_1_s = self._learn_air(t, velocity, rate, now)
+            path = self._fit_to_tilt(path)
+            s = self.speeds
             sp = follower.steer(path, s_m=self._progress_s, ref_s_m=ref_s, position=predicted,
                                 velocity=predicted_v, ahead_s=ahead_s, accel_mps2=s.accel_mps2,
                                 velocity_lag_s=self.velocity_lag_s, brake_lag_s=self.brake_lag_s,
@@ -903,22 +911,64 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             self._check_following(ff_mps, t)
             self._tick(wake_on_sensor=True)
 
-    def _drag_1_s(self, t, velocity, rate: float, now: float) -> float:
-        """Learn the vehicle's drag from this sample (:class:`~.drag.DragEstimate`; telemetry without an attitude
-        teaches nothing) and return the coefficient (1/s) to send as a feed-forward; 0 for an autopilot that does
-        not take an acceleration as one (``limits.acceleration_feedforward``)."""
+    def _learn_air(self, t, velocity, rate: float, now: float) -> float:
+        """Learn the vehicle's drag (:class:`~.drag.DragEstimate`) and the wind's lean (:class:`~.tilt.TiltBudget`)
+        from this sample (telemetry without an attitude teaches nothing) and return the drag (1/s) to send as a
+        feed-forward; 0 for an autopilot that does not take an acceleration as one
+        (``limits.acceleration_feedforward``)."""
+        sampled_at = float(getattr(t, "local_time_s", math.nan))  # the autopilot's clock: a sample once
+        if not math.isfinite(sampled_at):
+            sampled_at = rate * now
+        if sampled_at != self._drag_at:
+            dt_s = 0.0 if math.isnan(self._drag_at) else sampled_at - self._drag_at
+            dt_s = dt_s if dt_s <= 0.5 else 0.0  # a gap (a hold) starts afresh
+            self._drag_at = sampled_at
+            attitude = [float(getattr(t, name, math.nan)) for name in ("roll_rad", "pitch_rad", "heading_rad")]
+            self.drag.update(*attitude, velocity, dt_s)
+            self.tilt.update(*attitude, velocity, dt_s, drag_1_s=self.drag.fitted_1_s)
+        k = self.drag.k_1_s
         if not getattr(self.limits, "acceleration_feedforward", False):
             return 0.0
-        dt_s = 0.0 if math.isnan(self._drag_at) else rate * (now - self._drag_at)
-        self._drag_at = now
-        attitude = (float(getattr(t, name, math.nan)) for name in ("roll_rad", "pitch_rad", "heading_rad"))
-        self.drag.update(*attitude, velocity, dt_s if dt_s <= 0.5 else 0.0)  # a gap (a hold) starts afresh
-        k = self.drag.k_1_s
         if k > 0 and not self._drag_told:
             self._drag_told = True
             log.info("drag learnt from the attitude: %.2f m/s^2 per m/s; its lean goes with each setpoint as a "
                      "feed-forward acceleration", k)
         return k
+
+    def _fit_to_tilt(self, path: SmoothPath) -> SmoothPath:
+        """``path`` with its speeds scheduled again when what the tilt limit leaves after the wind's drag
+        (:meth:`~.tilt.TiltBudget.plan`) has changed enough to matter (0.3 m/s^2 of the wind's lean, a tenth of the
+        drag); the schedule as planned while it caps nothing."""
+        plan = self.tilt.plan(self._calm_speeds)
+        old = self._tilt_plan
+        if plan is None or (old is not None and math.dist(plan.wind_lean_ne, old.wind_lean_ne) < 0.3
+                            and abs(plan.drag_1_s - old.drag_1_s) < max(0.1 * old.drag_1_s, 0.02)):
+            return path
+        self._tilt_plan = plan
+        binds = plan.speeds != self._calm_speeds or plan.binds(self._calm_speeds.cruise_mps)
+        if not binds and not self._tilt_binds:
+            return path
+        if binds and not self._tilt_binds:
+            self._say(f"wind: its drag takes {math.hypot(*plan.wind_lean_ne):.1f} of the "
+                      f"{self.tilt.lean_limit_mps2:.1f} m/s^2 the tilt limit gives; flying within it "
+                      f"({self._tilt_described(plan)})")
+        else:
+            log.info("tilt budget %s: %s", "fitted again" if binds else "no longer binds", self._tilt_described(plan))
+        self._tilt_binds = binds
+        self.speeds = plan.speeds if binds else self._calm_speeds
+        s = self.speeds
+        return path.rescheduled(cruise_mps=s.cruise_mps, accel_mps2=s.accel_mps2,
+                                lateral_accel_mps2=s.lateral_accel_mps2, vertical_mps=s.vertical_mps,
+                                speed_cap_fn=plan.caps_mps if binds else None)
+
+    @staticmethod
+    def _tilt_described(plan: TiltPlan) -> str:
+        turns = np.linspace(0.0, 2.0 * math.pi, 72, endpoint=False)
+        caps = plan.caps_mps(np.column_stack([np.cos(turns), np.sin(turns)]))
+        return (f"corners and braking at {plan.speeds.lateral_accel_mps2:.1f} and {plan.speeds.accel_mps2:.1f} "
+                f"m/s^2, {min(caps.min(), plan.speeds.cruise_mps):.1f}-{min(caps.max(), plan.speeds.cruise_mps):.1f}"
+                f" m/s by direction; "
+                f"drag {plan.drag_1_s:.2f}/s")
 
     def _check_following(self, commanded_mps: float, t) -> None:
         """A vehicle in our mode that stands still for ``stuck_s`` while told to fly at ``stuck_mps`` or more has

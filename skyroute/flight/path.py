@@ -69,6 +69,8 @@ def corner_cut_m(turn_rad: float, radius_m: float) -> float:
 #: ``room_fn(points_ne, altitude_m)``: the horizontal distance (m) from each map point ``(north_m, east_m)`` (N, 2)
 #: to the nearest obstacle standing at ``altitude_m`` (m above the map's ground), ``(N,)``.
 RoomFn = Callable[[np.ndarray, float], np.ndarray]
+#: ``(M, 2)`` unit horizontal directions (north, east) -> ``(M,)`` the fastest ground speed along each (m/s).
+SpeedCapFn = Callable[[np.ndarray], np.ndarray]
 
 
 def _arc(corner: np.ndarray, u_in: np.ndarray, u_out: np.ndarray, turn_rad: float, radius_m: float,
@@ -213,6 +215,19 @@ class SmoothPath:
     point_speed_mps: np.ndarray
     waypoint_s_m: np.ndarray
     accel_mps2: float
+    #: (N-1,) each segment's arc radius (m; ``inf`` on a straight leg), to schedule the speeds again
+    radius_m: np.ndarray | None = None
+
+    def rescheduled(self, *, cruise_mps: float, accel_mps2: float, lateral_accel_mps2: float,
+                    vertical_mps: float, speed_cap_fn: SpeedCapFn | None = None) -> SmoothPath:
+        """The same path with its speeds scheduled again (see :func:`smooth_path`), e.g. for a wind that leaves
+        the vehicle less to turn and brake with (:mod:`~skyroute.flight.tilt`); arc lengths and waypoints as they
+        were, so progress along it carries over."""
+        radii = self.radius_m if self.radius_m is not None else np.full(max(len(self.points) - 1, 0), np.inf)
+        seg, speed = _schedule(self.points, radii, cruise_mps=cruise_mps, accel_mps2=accel_mps2,
+                               lateral_accel_mps2=lateral_accel_mps2, vertical_mps=vertical_mps,
+                               speed_cap_fn=speed_cap_fn)
+        return SmoothPath(self.points, self.s_m, seg, speed, self.waypoint_s_m, float(accel_mps2), radii)
 
     @property
     def length_m(self) -> float:
@@ -271,13 +286,15 @@ class SmoothPath:
 def smooth_path(waypoints: np.ndarray, *, corner_cut_m: float = 0.5, cruise_mps: float = 10.0,
                 accel_mps2: float = 3.0, lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5,
                 arc_step_m: float = 0.5, room_fn: RoomFn | None = None, room_m: float = 0.0,
-                max_cut_m: float = math.inf) -> SmoothPath:
+                max_cut_m: float = math.inf, speed_cap_fn: SpeedCapFn | None = None) -> SmoothPath:
     """Round each corner of ``waypoints`` (rows ``[north_m, east_m, altitude_m, ...]``) and schedule the speed.
 
     Each interior waypoint becomes an arc tangent to both legs with the :func:`corner_radius_m` that keeps it within
     ``corner_cut_m`` of them (tangent points at most half of either leg from the corner), sampled every
     ``arc_step_m``. Speeds: ``cruise_mps`` on straights, ``sqrt(lateral_accel_mps2 * r)`` on an arc, at most
-    ``vertical_mps`` vertically, braking at ``accel_mps2`` before each slower part and to a stop at the last
+    ``vertical_mps`` vertically, at most ``speed_cap_fn(directions)`` over the ground along each segment's
+    horizontal direction (``(M, 2)`` unit north, east rows to ``(M,)`` m/s: what the wind leaves the tilt,
+    :mod:`~skyroute.flight.tilt`), braking at ``accel_mps2`` before each slower part and to a stop at the last
     waypoint.
 
     With ``room_fn`` (what stands around the path), a level corner's arc is widened as far as the obstacles let it
@@ -333,8 +350,19 @@ def smooth_path(waypoints: np.ndarray, *, corner_cut_m: float = 0.5, cruise_mps:
         radii.append(math.inf)
         wp_index.append(len(out) - 1)
     points = np.array(out, float)
+    s_m = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    radius_m = np.array(radii, float)
+    seg, speed = _schedule(points, radius_m, cruise_mps=cruise_mps, accel_mps2=accel_mps2,
+                           lateral_accel_mps2=lateral_accel_mps2, vertical_mps=vertical_mps,
+                           speed_cap_fn=speed_cap_fn)
+    return SmoothPath(points, s_m, seg, speed, s_m[wp_index], float(accel_mps2), radius_m)
+
+
+def _schedule(points: np.ndarray, radii: np.ndarray, *, cruise_mps: float, accel_mps2: float,
+              lateral_accel_mps2: float, vertical_mps: float,
+              speed_cap_fn: SpeedCapFn | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(segment_speed_mps, point_speed_mps)`` for the polyline ``points`` whose segments have arc ``radii``."""
     steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    s_m = np.concatenate([[0.0], np.cumsum(steps)])
     seg = np.full(len(steps), float(cruise_mps))
     for j, (step, radius) in enumerate(zip(steps, radii, strict=True)):
         if math.isfinite(radius):
@@ -342,13 +370,21 @@ def smooth_path(waypoints: np.ndarray, *, corner_cut_m: float = 0.5, cruise_mps:
         climb = abs(points[j + 1, 2] - points[j, 2])
         if step > 1e-12 and climb > 1e-9:
             seg[j] = min(seg[j], vertical_mps * step / climb)
+    if speed_cap_fn is not None and len(steps):
+        along = np.diff(points[:, :2], axis=0)
+        level = np.hypot(along[:, 0], along[:, 1])
+        moving = level > 1e-9
+        if moving.any():
+            caps = np.asarray(speed_cap_fn(along[moving] / level[moving, None]), float)
+            seg[moving] = np.minimum(seg[moving], caps / np.maximum(level[moving] / np.maximum(steps[moving], 1e-12),
+                                                                    1e-9))
     speed = np.empty(len(points))
     speed[0] = seg[0] if len(seg) else 0.0
     speed[1:-1] = np.minimum(seg[:-1], seg[1:])
     speed[-1] = 0.0
     for j in range(len(points) - 2, -1, -1):
         speed[j] = min(speed[j], math.sqrt(speed[j + 1] ** 2 + 2.0 * accel_mps2 * steps[j]))
-    return SmoothPath(points, s_m, seg, speed, s_m[wp_index], float(accel_mps2))
+    return seg, speed
 
 
 def path_length_m(points: np.ndarray) -> float:

@@ -26,11 +26,12 @@ from dataclasses import dataclass, field
 
 from .telemetry import Autopilot
 
-ARDUPILOT_PARAMETERS = ("FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "GUID_TIMEOUT", "WPNAV_SPEED", "WPNAV_ACCEL",
+ARDUPILOT_PARAMETERS = ("FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "GUID_TIMEOUT", "WPNAV_SPEED", "WPNAV_ACCEL", "ANGLE_MAX",
                         "MAV_GCS_SYSID", "SYSID_MYGCS", "FENCE_ENABLE", "FENCE_TYPE", "FENCE_ACTION", "FENCE_RADIUS",
                         "FENCE_ALT_MAX", "FENCE_MARGIN", "RTL_ALT")
 PX4_PARAMETERS = ("COM_OF_LOSS_T", "COM_OBL_RC_ACT", "NAV_DLL_ACT", "COM_DL_LOSS_T", "MPC_XY_VEL_MAX",
-                  "MPC_ACC_HOR", "MPC_XY_P", "GF_ACTION", "GF_MAX_HOR_DIST", "GF_MAX_VER_DIST", "RTL_RETURN_ALT")
+                  "MPC_ACC_HOR", "MPC_XY_P", "MPC_TILTMAX_AIR", "GF_ACTION", "GF_MAX_HOR_DIST", "GF_MAX_VER_DIST",
+                  "RTL_RETURN_ALT")
 PARAMETERS = {Autopilot.ARDUPILOT: ARDUPILOT_PARAMETERS, Autopilot.PX4: PX4_PARAMETERS,
               Autopilot.GENERIC: PX4_PARAMETERS}
 
@@ -39,7 +40,7 @@ DEFAULTS = {
     "FS_GCS_ENABLE": 0.0, "FS_GCS_TIMEOUT": 5.0, "GUID_TIMEOUT": 3.0, "WPNAV_SPEED": 1000.0, "WPNAV_ACCEL": 250.0,
     "MAV_GCS_SYSID": 255.0,
     "COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 0.0, "NAV_DLL_ACT": 0.0, "COM_DL_LOSS_T": 10.0,
-    "MPC_XY_VEL_MAX": 12.0, "MPC_ACC_HOR": 3.0, "MPC_XY_P": 0.95,
+    "MPC_XY_VEL_MAX": 12.0, "MPC_ACC_HOR": 3.0, "MPC_XY_P": 0.95, "MPC_TILTMAX_AIR": 45.0, "ANGLE_MAX": 3000.0,
     "FENCE_ENABLE": 0.0, "FENCE_TYPE": 7.0, "FENCE_ACTION": 1.0, "FENCE_RADIUS": 300.0, "FENCE_ALT_MAX": 100.0,
     "FENCE_MARGIN": 2.0, "GF_ACTION": 2.0, "GF_MAX_HOR_DIST": 0.0, "GF_MAX_VER_DIST": 0.0,
     "RTL_ALT": 1500.0, "RTL_RETURN_ALT": 60.0,
@@ -87,7 +88,9 @@ class FlightLimits:
     ``acceleration_feedforward``: the autopilot adds a setpoint's acceleration to its velocity loop's output and
     holds it as it is (PX4 OFFBOARD), so the mission may send the drag's lean as one; False where that is not known
     (ArduCopter GUIDED integrates a target acceleration into the target's velocity: after our last setpoint it would
-    speed the target up for GUID_TIMEOUT).
+    speed the target up for GUID_TIMEOUT). ``max_tilt_deg``: the most the autopilot leans in flight (ArduCopter
+    ANGLE_MAX, PX4 MPC_TILTMAX_AIR; ``inf`` unknown): with the drag it bounds how fast the vehicle can fly against
+    and across a wind and still hold its track (:mod:`skyroute.flight.tilt`).
     """
 
     cruise_mps: float = math.inf
@@ -103,6 +106,7 @@ class FlightLimits:
     return_described: str = ""
     params: dict[str, float] = field(default_factory=dict)
     acceleration_feedforward: bool = False
+    max_tilt_deg: float = math.inf
 
     def coast_m(self, speed_mps: float) -> float:
         """How far (m) past its last setpoint a vehicle commanded at ``speed_mps`` can go once commands stop.
@@ -195,7 +199,8 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
             hold_last_s=get("GUID_TIMEOUT"),
             brake_mps2=accel, link_loss=link_loss + assumed("FS_GCS_ENABLE", "GUID_TIMEOUT"), leaves_flying=flying,
             response_s=1.0, fence=geofence(autopilot, params), return_altitude_m=get("RTL_ALT") / 100.0,
-            return_described=f"RTL_ALT={get('RTL_ALT'):g} cm" + assumed("RTL_ALT"), params=dict(params))
+            return_described=f"RTL_ALT={get('RTL_ALT'):g} cm" + assumed("RTL_ALT"), params=dict(params),
+            max_tilt_deg=get("ANGLE_MAX") / 100.0)
     offboard = int(get("COM_OBL_RC_ACT"))
     datalink = int(get("NAV_DLL_ACT"))
     link_loss = (f"after {get('COM_OF_LOSS_T'):g} s without setpoints PX4 switches to "
@@ -216,4 +221,5 @@ def flight_limits(autopilot: Autopilot, params: dict[str, float], our_system: in
         response_s=0.6 if autopilot is Autopilot.PX4 else math.nan, fence=geofence(autopilot, params),
         return_altitude_m=get("RTL_RETURN_ALT"),
         return_described=f"RTL_RETURN_ALT={get('RTL_RETURN_ALT'):g} m" + assumed("RTL_RETURN_ALT"),
-        params=dict(params), acceleration_feedforward=autopilot is Autopilot.PX4)
+        params=dict(params), acceleration_feedforward=autopilot is Autopilot.PX4,
+        max_tilt_deg=get("MPC_TILTMAX_AIR"))

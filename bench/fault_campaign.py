@@ -13,8 +13,9 @@ and a fresh client process: once with no fault (the baseline) and once with the 
 at speed-up 5 the vehicle meets 200 ms as a second each way). Two more mixes, outside the default rotation
 (``--mixes``): ``latency100``, ``sensor_noise_dropout`` (0.3 m range noise, 20 % of the sectors lost), and
 ``gps1`` / ``gps2`` (the position estimate off the truth by a Gauss-Markov drift of 1 or 2 m deviation and 10 s
-correlation: harsher than the sim's default 60 s), and ``storm``: all at once, moderately (5.8 m/s wind with 2 m/s
-gusts, 10 % loss, 100 ms latency, the noisy sensor, ``gps1``).
+correlation: harsher than the sim's default 60 s), ``storm``: all at once, moderately (5.8 m/s wind with 2 m/s
+gusts, 10 % loss, 100 ms latency, the noisy sensor, ``gps1``), and ``gale``: a 13 m/s wind with 3 m/s gusts, most of
+what a 30 degree tilt limit (ArduCopter's default) can hold against.
 With ``--walls N`` each mission is flown in a changed city, N tall walls across the route the map gives it
 (``skyroute.cityedit``; the sim's truth, the client keeps the map), baseline and fault flight alike.
 
@@ -78,6 +79,8 @@ MIXES = {
     # everything at once, moderately: wind with gusts, a lossy slow link, a noisy sensor, a wandering estimate
     "storm": ["--wind", "5,3", "--gust", "2", "--packet-loss", "10", "--latency", "100", "--sensor-noise", "0.3",
               "--sensor-dropout", "20", "--gps-noise", "1", "--gps-correlation", "10"],
+    # a gale: 13 m/s with 3 m/s gusts takes most of the tilt ArduCopter's default ANGLE_MAX (30 degrees) allows
+    "gale": ["--wind", "11,-7", "--gust", "3"],
 }
 DEFAULT_MIXES = ["loss10", "latency200", "outage3", "loss5_latency100_wind"]
 

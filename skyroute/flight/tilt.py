@@ -116,8 +116,8 @@ class TiltBudget:
 
     @property
     def wind_lean_ne(self) -> tuple[float, float]:
-        """The lean (m/s^2, north, east) the wind's drag takes on a hovering vehicle's thrust, with a minus: the
-        drag's own direction (``c`` above)."""
+        """``c`` above: the wind's drag on a hovering vehicle (m/s^2, north, east). It points where the wind blows;
+        the vehicle leans the other way to hold it."""
         return float(self._c[0]), float(self._c[1])
 
     def update(self, roll_rad: float, pitch_rad: float, yaw_rad: float, velocity_neu, dt_s: float, *,

@@ -8,6 +8,7 @@ vehicle landed with its own WGS84 approximation. ``--speedup 5``; skipped where 
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
@@ -59,6 +60,21 @@ def assert_landed_safely_at(monitor: Monitor, goal, since_s: float) -> None:
     clearance_m = monitor.min_clearance_m(since_s)
     print(f"\nlanded {error_m:.2f} m from the goal, min clearance {clearance_m:.2f} m")
     assert error_m <= 1.0 and clearance_m >= SAFETY_M - 1.5
+
+
+@contextlib.contextmanager
+def flown_to(sitl, goal, tmp_path, capsys):
+    """Fly the CLI to ``goal`` (map N, E) watched by a monitor on ``sitl``'s GCS port; yields ``(monitor, started,
+    out)`` (``time.monotonic()`` before the flight, the CLI's stdout) once the CLI exited 0."""
+    monitor = Monitor(sitl.gcs, MAP, ground_amsl_m=0.0)
+    try:
+        started = time.monotonic()
+        code = mp.main(mission_args(sitl, goal, tmp_path))
+        out, err = capsys.readouterr()
+        assert code == EXIT_OK, err
+        yield monitor, started, out
+    finally:
+        monitor.close()
 
 
 @pytest.fixture(scope="module")
@@ -221,12 +237,7 @@ def test_a_block_only_arducopters_own_proximity_sensor_shows_is_flown_round_to_t
     with ArduCopterSitl((LAT0, LON0, 0.0), params={"PRX1_TYPE": 10}) as sitl:
         inclusion = box_ne(0.0, 0.0, 1500.0, 1500.0)  # SITL's sensor needs one; beyond its 200 m
         upload_fence(sitl.serial0, LAT0, LON0, inclusion, [box_ne(*BLOCK)])
-        monitor = Monitor(sitl.gcs, MAP, ground_amsl_m=0.0)
-        try:
-            started = time.monotonic()
-            code = mp.main(mission_args(sitl, README_GOAL, tmp_path))
-            out, err = capsys.readouterr()
-            assert code == EXIT_OK, err
+        with flown_to(sitl, README_GOAL, tmp_path, capsys) as (monitor, started, out):
             done = [line for line in out.splitlines() if line.startswith("mission complete:")]
             assert done and not done[0].endswith(" 0 replans") and "replans" in done[0], out
             assert_landed_safely_at(monitor, README_GOAL, started)
@@ -240,8 +251,6 @@ def test_a_block_only_arducopters_own_proximity_sensor_shows_is_flown_round_to_t
             closest = float(distance_to_boxes_m(track, block).min())
             print(f"closest to the block {closest:.2f} m")
             assert closest >= SAFETY_M - 1.5
-        finally:
-            monitor.close()
 
 
 def test_a_wind_that_takes_most_of_the_tilt_is_flown_within_it_and_keeps_the_margin(tmp_path, capsys):
@@ -250,20 +259,13 @@ def test_a_wind_that_takes_most_of_the_tilt_is_flown_within_it_and_keeps_the_mar
     limit and the wind carried it off the README route, through a building's footprint (monitor: 0.0 m, 651 m flown
     for 594 planned); flown within what the tilt leaves (skyroute.flight.tilt) it kept 5.37 m."""
     wind = {"SIM_WIND_SPD": 8.0, "SIM_WIND_DIR": 90.0, "SIM_WIND_T_ALT": 4.0}
-    with ArduCopterSitl((LAT0, LON0, 0.0), params=wind) as sitl:
-        monitor = Monitor(sitl.gcs, MAP, ground_amsl_m=0.0)
-        try:
-            started = time.monotonic()
-            code = mp.main(mission_args(sitl, README_GOAL, tmp_path))
-            out, err = capsys.readouterr()
-            assert code == EXIT_OK, err
-            north, east, _ = monitor.landed_at()
-            error_m = math.hypot(north - README_GOAL[0], east - README_GOAL[1])
-            clearance_m = monitor.min_clearance_m(started)
-            print(f"\nlanded {error_m:.2f} m from the goal, min clearance {clearance_m:.2f} m")
-            assert clearance_m >= SAFETY_M - 1.5
-            # ArduCopter's own LAND descends drifting with the wind: 0.81 m measured, before the change as after
-            assert error_m <= 1.5
-            assert "wind: its drag takes" in out
-        finally:
-            monitor.close()
+    with ArduCopterSitl((LAT0, LON0, 0.0), params=wind) as sitl, \
+            flown_to(sitl, README_GOAL, tmp_path, capsys) as (monitor, started, out):
+        north, east, _ = monitor.landed_at()
+        error_m = math.hypot(north - README_GOAL[0], east - README_GOAL[1])
+        clearance_m = monitor.min_clearance_m(started)
+        print(f"\nlanded {error_m:.2f} m from the goal, min clearance {clearance_m:.2f} m")
+        assert clearance_m >= SAFETY_M - 1.5
+        # ArduCopter's own LAND descends drifting with the wind: 0.81 m measured, before the change as after
+        assert error_m <= 1.5
+        assert "wind: its drag takes" in out

@@ -963,8 +963,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
 
     @staticmethod
     def _tilt_described(plan: TiltPlan) -> str:
-        turns = np.linspace(0.0, 2.0 * math.pi, 72, endpoint=False)
-        caps = plan.caps_mps(np.column_stack([np.cos(turns), np.sin(turns)]))
+        caps = plan.caps_round_mps()
         return (f"corners and braking at {plan.speeds.lateral_accel_mps2:.1f} and {plan.speeds.accel_mps2:.1f} "
                 f"m/s^2, {min(caps.min(), plan.speeds.cruise_mps):.1f}-{min(caps.max(), plan.speeds.cruise_mps):.1f}"
                 f" m/s by direction; "

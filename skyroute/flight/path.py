@@ -374,10 +374,9 @@ def _schedule(points: np.ndarray, radii: np.ndarray, *, cruise_mps: float, accel
         along = np.diff(points[:, :2], axis=0)
         level = np.hypot(along[:, 0], along[:, 1])
         moving = level > 1e-9
-        if moving.any():
+        if moving.any():  # a cap on the ground speed: on a climbing segment only its level share is capped
             caps = np.asarray(speed_cap_fn(along[moving] / level[moving, None]), float)
-            seg[moving] = np.minimum(seg[moving], caps / np.maximum(level[moving] / np.maximum(steps[moving], 1e-12),
-                                                                    1e-9))
+            seg[moving] = np.minimum(seg[moving], caps * steps[moving] / level[moving])
     speed = np.empty(len(points))
     speed[0] = seg[0] if len(seg) else 0.0
     speed[1:-1] = np.minimum(seg[:-1], seg[1:])

@@ -79,11 +79,14 @@ class TiltPlan:
         return speed_caps_mps(directions_ne, drag_1_s=self.drag_1_s, wind_lean_ne=self.wind_lean_ne,
                               lean_max_mps2=self.lean_max_mps2, reserve_mps2=self.reserve_mps2)
 
+    def caps_round_mps(self) -> np.ndarray:
+        """:meth:`caps_mps` every 5 degrees from north, clockwise (72,)."""
+        turns = np.radians(np.arange(0.0, 360.0, 5.0))
+        return self.caps_mps(np.column_stack([np.cos(turns), np.sin(turns)]))
+
     def binds(self, cruise_mps: float) -> bool:
         """True when some direction is capped under ``cruise_mps``."""
-        turns = np.linspace(0.0, 2.0 * math.pi, 72, endpoint=False)
-        caps = self.caps_mps(np.column_stack([np.cos(turns), np.sin(turns)]))
-        return bool(caps.min() < cruise_mps)
+        return bool(self.caps_round_mps().min() < cruise_mps)
 
 
 class TiltBudget:

@@ -597,8 +597,11 @@ class FakeVehicle:
     """A point that flies to its local setpoint at ``speed_mps`` in mode "offboard", lands at 1.5 m/s in "land",
     stays put otherwise; failure knobs below. Only the map offset's horizontal part is fixed (OFFSET)."""
 
-    def __init__(self, clock, *, start=(0.0, 0.0), speed_mps=5.0, arm_refusals=0, climbs=True, ready_at_s=0.0):
+    def __init__(self, clock, *, start=(0.0, 0.0), speed_mps=5.0, arm_refusals=0, climbs=True, ready_at_s=0.0,
+                 land_drift_mps=0.0, lowest_down_m=math.inf):
         self.clock = clock
+        self.lowest_down_m = lowest_down_m  # local down it cannot go below in our mode (something under it)
+        self.land_drift_mps = land_drift_mps  # north, while landing (PX4 SIH's landing wanders off its point)
         clock.tickers.append(self._step)
         self.telemetry = FakeTelemetry(north_m=start[0], east_m=start[1])
         self.link_ok = True
@@ -747,9 +750,12 @@ class FakeVehicle:
                 velocity = delta / dist * step / dt
                 t.north_m, t.east_m, t.down_m = here + delta / dist * step
                 t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps = velocity
+            if t.down_m > self.lowest_down_m:
+                t.down_m, t.local_v_down_mps = self.lowest_down_m, 0.0
         elif self.mode in ("land", "rtl") and t.down_m < 0:  # a return, simplified: down where it is
             t.down_m = min(0.0, t.down_m + 1.5 * dt)
             t.local_v_down_mps = 1.5
+            t.north_m += self.land_drift_mps * dt
         t.on_ground = t.down_m >= 0.0
 
 
@@ -857,8 +863,10 @@ def test_full_mission(clock):
     assert result.completed and result.final_state is S.MANUAL
     assert [h[2] for h in result.history] == [S.PREFLIGHT, S.PLANNING, S.ARMING, S.TAKEOFF, S.WAYPOINT,
                                               S.WAYPOINT, S.WAYPOINT, S.LANDING, S.DISARMING, S.MANUAL]
-    # commanded in the autopilot's local frame: map - offset; heading along each leg
-    assert v.gotos[-1] == pytest.approx((60 - 100, 40 + 50, -10.0, math.pi / 2))
+    # commanded in the autopilot's local frame: map - offset; heading along each leg; over the goal at 10 m, then
+    # down over it to 1.5 m before the autopilot's landing takes over
+    assert (60 - 100, 40 + 50, -10.0, math.pi / 2) in [pytest.approx(g) for g in v.gotos]
+    assert v.gotos[-1] == pytest.approx((60 - 100, 40 + 50, -1.5, math.pi / 2), abs=0.05)
     assert v.gotos[1][3] == pytest.approx(0.0)
     assert not v.telemetry.armed and v.telemetry.on_ground and v.setpoint is None
     assert v.calls[-3:] == ["land", "disarm", "release_control"]
@@ -867,7 +875,8 @@ def test_full_mission(clock):
     # flown: the last metre of the climb blends into the first leg (altitude tolerance 1 m) and the 90 deg
     # corner is rounded by an arc 0.5 m inside it: shorter than planned by a couple of metres, never longer
     assert 117.0 <= result.flown_length_m <= 120.0
-    assert result.flight_time_s == pytest.approx(10 / 5.0 + 100 / 5.0 + 10 / 1.5, abs=0.5)  # climb, legs, land
+    # climb, legs, our descent to 1.5 m at 1 m/s, the autopilot's landing
+    assert result.flight_time_s == pytest.approx(10 / 5.0 + 100 / 5.0 + 8.5 / 1.0 + 1.5 / 1.5, abs=0.5)
     assert result.track.shape[1] == 4 and result.track[-1, 1:3] == pytest.approx([60.0, 40.0], abs=0.3)
     assert "planned 120.0 m" in result.summary() and "from the goal" in result.summary()
     # no silent steps: planning, the takeoff, each waypoint with the distance to go and the speed, the goal
@@ -952,15 +961,17 @@ def test_map_altitudes_are_above_the_maps_ground_not_the_vehicles_start(clock):
     result = make_mission(v, clock, straight_plan([]), surface_fn=lambda n, e: 8.0 if abs(n) < 1 else 0.0).run()
     assert v.grounds == [pytest.approx(GROUND_AMSL_M)]
     assert result.completed
-    # flown at 10 m above the map's ground: 2 m above the roof it started on (local down -2 m)
-    assert v.gotos[-1][2] == pytest.approx(-2.0)
+    # flown at 10 m above the map's ground: 2 m above the roof it started on (local down -2 m); come down over the
+    # goal, never below 1.5 m above the street there (local down +6.5 m; this fake lands at its roof's level)
+    assert min(g[2] for g in v.gotos) == pytest.approx(-2.0)
+    assert -0.5 < v.gotos[-1][2] <= 6.5 + 0.05
 
 
 def test_the_maps_ground_altitude_can_be_given(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     make_mission(v, clock, straight_plan([]), ground_amsl_m=GROUND_AMSL_M - 3.0).run()
     assert v.grounds == [GROUND_AMSL_M - 3.0]  # the vehicle stands 3 m above the map's ground
-    assert v.gotos[-1][2] == pytest.approx(-10.0 + 3.0)
+    assert min(g[2] for g in v.gotos) == pytest.approx(-10.0 + 3.0)
 
 
 def test_speeds_are_fitted_to_the_autopilots_limits_and_a_hovering_failsafe_is_warned_about(clock):
@@ -1362,6 +1373,27 @@ def test_a_mode_change_we_did_not_ask_for_is_taken_back_at_once(clock):
     assert (S.WAYPOINT, E.CONTROL_LOST, S.RECOVERING) in result.history
 
 
+def test_a_mode_change_during_the_descent_over_the_goal_is_taken_back_as_in_flight(clock):
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    changed = []
+
+    def leave_offboard(dt):  # once, 3 m into the descent over the goal
+        if not changed and v.gotos and v.gotos[-1][2] > -7.0:
+            changed.append(clock.now)
+            v.mode = "hold"
+
+    def to_the_goal(n, e):  # straight_plan's route, to its goal from anywhere: (60, 40) at 10 m
+        corners = [(n, e), (60.0, e), (60.0, 40.0)]
+        kept = [c for k, c in enumerate(corners) if k == 0 or math.dist(c, corners[k - 1]) > 0.5]
+        return np.array([[a, b, 10.0, 0.0] for a, b in kept])
+
+    clock.tickers.append(leave_offboard)
+    result = make_mission(v, clock, to_the_goal).run()
+    assert changed and result.completed and result.landing_error_m < 0.3
+    assert (S.WAYPOINT, E.CONTROL_LOST, S.RECOVERING) in result.history  # taken back, not landed where it was
+    assert v.calls.count("land") == 1
+
+
 def test_a_vehicle_that_stops_following_in_our_mode_is_given_its_mode_again(clock):
     # the autopilot still says OFFBOARD but ignores our setpoints (it dropped our stream without saying so)
     v = FakeVehicle(clock, start=(-100.0, 50.0))
@@ -1675,13 +1707,38 @@ def test_disarm_in_the_air_during_the_final_descent_is_not_mission_complete(cloc
 
     v.land = land
     with pytest.raises(m.VehicleDisarmedInFlight, match=r"in the air in state LANDING") as err:
-        make_mission(v, clock, straight_plan([])).run()
+        make_mission(v, clock, straight_plan([]), handover_m=0.0).run()  # the autopilot's landing from 10 m
     assert reported_position(str(err.value)) == pytest.approx((60.0, 40.0, 7.0), abs=0.1)
     assert seen[0][0] == pytest.approx((60.0, 40.0, 7.0), abs=0.1)
     result = err.value.result
     assert not result.completed and result.final_state is S.FAILED
     assert math.isnan(result.landing_error_m)  # no touchdown was recorded
     assert v.calls[-2:] == ["land", "release_control"]
+
+
+@pytest.mark.parametrize("handover_m, error_m", [(1.5, 0.2), (0.0, 1.33)], ids=["from-1.5-m", "from-10-m"])
+def test_the_vehicle_comes_down_over_the_goal_before_a_landing_that_wanders_takes_over(clock, handover_m, error_m):
+    """Our setpoints bring it down over the goal to 1.5 m; the autopilot's landing (which drifts 0.2 m/s here, as
+    PX4's wandered off its landing point) flies only the last second."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0), land_drift_mps=0.2)
+    result = make_mission(v, clock, straight_plan([]), handover_m=handover_m).run()
+    assert result.completed
+    assert result.landing_error_m == pytest.approx(error_m, abs=0.05)
+    lowest = max(g[2] for g in v.gotos)  # local down: the lowest setpoint
+    assert lowest == pytest.approx(-max(handover_m, 10.0 * (handover_m == 0)), abs=0.05)
+    assert v.calls[-3:] == ["land", "disarm", "release_control"]
+
+
+def test_a_descent_that_stops_short_is_handed_to_the_autopilots_landing_after_a_second(clock, caplog):
+    """Something under the goal the map does not show (or an altitude estimate that reads high) stops the descent 4 m
+    up: one second later the autopilot's landing, which finds the ground itself, takes over."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0), lowest_down_m=-4.0)
+    with caplog.at_level("INFO", logger="skyroute.flight.landing"):
+        result = make_mission(v, clock, straight_plan([])).run()
+    assert result.completed and v.calls[-3:] == ["land", "disarm", "release_control"]
+    assert "it stopped coming down" in caplog.text
+    assert "4.0 m above the map's surface: landing from there" in caplog.text
+    assert max(g[2] for g in v.gotos) > -4.0 + 0.5  # it was told to go lower
 
 
 def test_autopilot_disarming_itself_on_touchdown_is_a_landing(clock):
@@ -2357,7 +2414,7 @@ def test_600_m_mission_time_against_sim(sim_start, tmp_path):
     from sim.params import table_for
 
     sim = sim_start(strict=True, speedup=10.0, tlog_path=tmp_path / "sim.tlog")
-    result = fly(sim, plan)
+    result = fly(sim, plan, handover_m=0.0)  # the autopilot's landing all the way down: its sink rate is checked
     report = sim.stop()
     px4 = table_for("px4")  # the simulated PX4's parameters (PX4 1.15's defaults), not the client's numbers
     # cruise: the mission's documented 10 m/s, within MPC_XY_VEL_MAX; climb MPC_Z_VEL_MAX_UP; a landing sinks at

@@ -266,6 +266,7 @@ def test_a_wind_that_takes_most_of_the_tilt_is_flown_within_it_and_keeps_the_mar
         clearance_m = monitor.min_clearance_m(started)
         print(f"\nlanded {error_m:.2f} m from the goal, min clearance {clearance_m:.2f} m")
         assert clearance_m >= SAFETY_M - 1.5
-        # ArduCopter's own LAND descends drifting with the wind: 0.81 m measured, before the change as after
-        assert error_m <= 1.5
+        # ArduCopter's own LAND descends drifting with the wind: from 5 m it set down 0.81 m off; brought down over
+        # the goal to 1.5 m first (skyroute.flight.landing), 0.21 m
+        assert error_m <= 1.0
         assert "wind: its drag takes" in out

@@ -182,6 +182,9 @@ class ExplorationMission(Mission):
         """Not the mission's path check: exploring, every tick feeds the live map and the leg is re-decided
         (:meth:`_tick`), which also re-routes round what the sensor shows."""
 
+    def _last_leg(self) -> bool:
+        return self._final_leg
+
     def _fire(self, event):
         if event is E.GOAL_REACHED and not self._final_leg:
             event = E.WAYPOINT_REACHED  # an exploring leg's end: the flight goes on

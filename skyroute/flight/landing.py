@@ -31,6 +31,70 @@ class LandingMixin:
         self._land_commanded = True
         self._await_touchdown()
 
+    def _come_down(self, north_m: float, east_m: float) -> None:
+        """Descend over the map point to ``handover_m`` above the map's surface there under our own setpoints,
+        holding the point with the hover trim (:meth:`~.mission.Mission._trim`), so that the autopilot's landing
+        that follows has little left to fly. The end of the last leg (WAYPOINT): a link or a mode lost on the way
+        down is recovered as anywhere in flight.
+
+        An autopilot's landing holds the position it had when told to land, less tightly than its position loop
+        holds a setpoint: PX4 SIH wandered 0.5 m off its landing point over a 5 m descent and touched down up to
+        1.2 m from the goal it had been brought to within 0.3 m of (measured). From 1.5 m its landing is a short
+        descent. The setpoint comes down at ``vertical_mps``, at most 1 m/s: a firm touchdown at worst, should the
+        altitude estimate read high (a booting PX4's drifted 2.6 m over one flight, measured, though the other way).
+
+        The hand-over comes once the vehicle is at that height (within 0.3 m) and over the point
+        (:meth:`~.mission.Mission._at_goal`); at once if it is on the ground or has stopped coming down while told
+        to for a second and the link's round trip (something below, or an estimate that reads high); at the latest
+        after the descent's time plus twice ``settle_s`` (autopilot seconds), wherever the vehicle is.
+        """
+        surface = 0.0 if self.surface_fn is None else float(self.surface_fn(north_m, east_m))
+        floor = surface + self.handover_m
+        start = self._map_position().altitude_m
+        if self.handover_m <= 0 or start - floor < 0.5:
+            return
+        speed = min(self.speeds.vertical_mps, 1.0)
+        rate = self._autopilot_rate()
+        began = self.clock()
+        limit_s = (start - floor) / speed + 2.0 * self.settle_s
+        heading = self._heading_rad if math.isfinite(self._heading_rad) else \
+            float(getattr(self.vehicle.telemetry, "heading_rad", 0.0) or 0.0)
+        self._near_goal_since = math.nan
+        stalled_at = math.nan
+        # a vehicle told to come down starts to only after the link's round trip (autopilot seconds)
+        stall_s = 1.0 + rate * float(getattr(self.vehicle, "round_trip_s", 0.0) or 0.0)
+        log.info("coming down over (%.1f N, %.1f E) to %.1f m before landing", north_m, east_m, floor)
+        trim_at = began
+        while True:
+            now = self.clock()
+            elapsed = rate * (now - began)
+            carrot_m = max(floor, start - speed * elapsed)
+            t = self.vehicle.telemetry
+            q = self._unshifted(self._map_position())
+            off_m = math.hypot(q.north_m - north_m, q.east_m - east_m)
+            if carrot_m == floor and abs(q.altitude_m - floor) <= 0.3 and self._at_goal(np.array([north_m, east_m,
+                                                                                                   floor])):
+                return
+            descending = t.local_v_down_mps > 0.1
+            if q.altitude_m - carrot_m < 0.5 or descending:
+                stalled_at = math.nan
+            elif math.isnan(stalled_at):
+                stalled_at = elapsed
+            why = ("it is on the ground" if t.on_ground else
+                   "it stopped coming down" if elapsed - stalled_at >= stall_s else
+                   "not settled in time" if elapsed > limit_s else "")
+            if why:
+                log.info("%s %.1f s into the descent, %.2f m off the landing point, %.1f m above the map's surface: "
+                         "landing from there", why, elapsed, off_m, q.altitude_m - surface)
+                return
+            position = self._trim(np.array([north_m, east_m, carrot_m]), q, t, rate * (now - trim_at))
+            trim_at = now
+            if self.keep_off is not None:
+                position[:2] += self.keep_off.shift_ne
+            target = self._to_local(*position)
+            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading)
+            self._tick()
+
     def _await_touchdown(self) -> None:
         deadline = self.clock() + self.landing_timeout_s
         self._check_armed()

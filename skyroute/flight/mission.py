@@ -162,6 +162,10 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         corner's arc is widened within it, keeping the whole margin (``replan_margin_m``) from every obstacle, and
         while the sensor may still find more, never more than half the margin off its legs; the corners are rounded
         again whenever the observed obstacles change. None: every arc keeps within ``corner_cut_m`` of its legs.
+    handover_m : float
+        The height (m) above the map's surface at the landing point down to which the vehicle descends under our
+        setpoints, holding that point, before the autopilot's own landing takes over (:meth:`_come_down`); 0 hands
+        over at the flight altitude.
     lead_s, velocity_lag_s : float
         Steering (:func:`~.follower.steer`): the autopilot's response time on top of the link's round trip;
         how far ahead the feed-forward velocity is taken.
@@ -199,7 +203,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                  resume_off_path_m: float = 2.0,
                  goal_tolerance_m: float = 0.3, stop_speed_mps: float = 0.3, settle_s: float = 3.0,
                  trim_gain: float = 0.4, max_trim_m: float = 1.5, stuck_mps: float = 1.0, stuck_s: float = 3.0,
-                 altitude_tolerance_m: float = 1.0,
+                 altitude_tolerance_m: float = 1.0, handover_m: float = 1.5,
                  corner_cut_m: float = 0.5, cruise_mps: float = 10.0, accel_mps2: float = 3.0,
                  lateral_accel_mps2: float = 3.0, vertical_mps: float = 1.5, lead_s: float = 0.2,
                  velocity_lag_s: float = 0.15, poll_s: float = 0.02, track_interval_s: float = 0.2,
@@ -232,6 +236,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.stuck_mps, self.stuck_s, self._stuck_since = stuck_mps, stuck_s, math.nan
         self._trim_m = np.zeros(2)
         self.altitude_tolerance_m, self.corner_cut_m = altitude_tolerance_m, corner_cut_m
+        self.handover_m, self._heading_rad = handover_m, math.nan
         self.speeds = preflight.Speeds(cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps)
         self.lead_s, self.velocity_lag_s, self.brake_lag_s = lead_s, velocity_lag_s, 0.0
         self.drag, self._drag_at, self._drag_told = DragEstimate(), math.nan, False
@@ -846,6 +851,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                     tried_goal = True
                     self._goal_again(p)
                 self._reached(i, last, path, p)
+                if self._last_leg():  # the landing follows: come down over the goal first
+                    self._come_down(float(waypoints[last, 0]), float(waypoints[last, 1]))
                 self._fire(E.GOAL_REACHED)
                 return
             if self.clock() > deadline:
@@ -886,6 +893,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                                 speed_cap_mps=self._sight_cap_mps(p, path.point_at(self._progress_s)[1]),
                                 delay_s=delay_s, drag_1_s=drag_1_s)
             ref_s, heading = sp.ref_s, sp.heading_rad
+            self._heading_rad = heading
             ff_mps, ff_at = (0.0 if sp.velocity is None else float(np.linalg.norm(sp.velocity))), now
             sent.add(now, sp.velocity)
             position = sp.position
@@ -910,6 +918,10 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             self._say(self._flying_line(path, t), every=True)
             self._check_following(ff_mps, t)
             self._tick(wake_on_sensor=True)
+
+    def _last_leg(self) -> bool:
+        """Whether the landing follows the leg :meth:`_follow` flies (a mission's always does)."""
+        return True
 
     def _learn_air(self, t, velocity, rate: float, now: float) -> float:
         """Learn the vehicle's drag (:class:`~.drag.DragEstimate`) and the wind's lean (:class:`~.tilt.TiltBudget`)

@@ -918,11 +918,11 @@ def test_airborne_time_is_in_the_autopilots_clock_from_liftoff_to_touchdown(cloc
     assert result.airborne_s < result.flight_time_s
 
 
-def test_landing_error_is_measured_to_the_goal_not_to_the_planners_cell(clock):
-    # the planner's last waypoint is the centre of the goal's 1 m cell, 0.4 m from the goal the user gave
+def test_landing_error_is_measured_to_the_goal_not_to_the_routes_end(clock):
+    # a route that ends 1 m from the goal the user gave (beyond the goal's cell: it is landed at its end)
     v = FakeVehicle(clock, start=(-100.0, 50.0))
-    result = make_mission(v, clock, straight_plan([]), goal_ne=(60.0, 40.4)).run()
-    assert result.landing_error_m == pytest.approx(0.4, abs=0.05)
+    result = make_mission(v, clock, straight_plan([]), goal_ne=(60.0, 41.0)).run()
+    assert result.landing_error_m == pytest.approx(1.0, abs=0.05)
 
 
 # ---------------------------------------------------------------------------------------- before takeoff
@@ -1727,6 +1727,16 @@ def test_the_vehicle_comes_down_over_the_goal_before_a_landing_that_wanders_take
     lowest = max(g[2] for g in v.gotos)  # local down: the lowest setpoint
     assert lowest == pytest.approx(-max(handover_m, 10.0 * (handover_m == 0)), abs=0.05)
     assert v.calls[-3:] == ["land", "disarm", "release_control"]
+
+
+@pytest.mark.parametrize("goal_ne, error_m", [((60.4, 39.6), 0.0), ((62.0, 40.0), 2.0)],
+                         ids=["in-the-last-cell", "a-fallback-point"])
+def test_the_descent_is_over_the_goal_itself_when_the_route_ends_in_its_cell(clock, goal_ne, error_m):
+    """Planners end a route at the goal cell's centre, up to 0.71 m from the goal: the vehicle comes down over the
+    goal. A route that ends elsewhere (a fallback point short of a goal out of reach) is landed at its end."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    result = make_mission(v, clock, straight_plan([]), goal_ne=goal_ne).run()
+    assert result.completed and result.landing_error_m == pytest.approx(error_m, abs=0.05)
 
 
 def test_a_descent_that_stops_short_is_handed_to_the_autopilots_landing_after_a_second(clock, caplog):

@@ -852,7 +852,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                     self._goal_again(p)
                 self._reached(i, last, path, p)
                 if self._last_leg():  # the landing follows: come down over the goal first
-                    self._come_down(float(waypoints[last, 0]), float(waypoints[last, 1]))
+                    self._come_down(*self._landing_point(waypoints[last]))
                 self._fire(E.GOAL_REACHED)
                 return
             if self.clock() > deadline:
@@ -918,6 +918,14 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
             self._say(self._flying_line(path, t), every=True)
             self._check_following(ff_mps, t)
             self._tick(wake_on_sensor=True)
+
+    def _landing_point(self, end: np.ndarray) -> tuple[float, float]:
+        """Where to come down (map north, east m): the goal itself when the route ends in its 1 m cell (the
+        planners end routes at the goal cell's centre, up to 0.71 m off the goal; a free cell keeps the margin
+        over its whole square, so the hop within it is clear), else the route's end (a fallback point)."""
+        if self.goal_ne is not None and math.dist(self.goal_ne, (end[0], end[1])) <= math.sqrt(0.5) + 1e-6:
+            return self.goal_ne
+        return float(end[0]), float(end[1])
 
     def _last_leg(self) -> bool:
         """Whether the landing follows the leg :meth:`_follow` flies (a mission's always does)."""

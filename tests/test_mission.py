@@ -752,7 +752,7 @@ class FakeVehicle:
                 t.local_v_north_mps, t.local_v_east_mps, t.local_v_down_mps = velocity
             if t.down_m > self.lowest_down_m:
                 t.down_m, t.local_v_down_mps = self.lowest_down_m, 0.0
-        elif self.mode in ("land", "rtl") and t.down_m < 0:  # a return, simplified: down where it is
+        elif self.mode.lower() in ("land", "rtl") and t.down_m < 0:  # a return, simplified: down where it is
             t.down_m = min(0.0, t.down_m + 1.5 * dt)
             t.local_v_down_mps = 1.5
             t.north_m += self.land_drift_mps * dt
@@ -1392,6 +1392,25 @@ def test_a_mode_change_during_the_descent_over_the_goal_is_taken_back_as_in_flig
     assert changed and result.completed and result.landing_error_m < 0.3
     assert (S.WAYPOINT, E.CONTROL_LOST, S.RECOVERING) in result.history  # taken back, not landed where it was
     assert v.calls.count("land") == 1
+
+
+def test_the_autopilots_own_landing_during_the_descent_over_the_goal_is_the_landing(clock, caplog):
+    """A failsafe (a low battery) puts the vehicle in LAND 3 m into the descent: it lands over the goal, which is
+    the mission's end, not a mode to take back or a hand-over."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    failsafe = []
+
+    def low_battery(dt):
+        if not failsafe and v.gotos and v.gotos[-1][2] > -7.0:
+            failsafe.append(clock.now)
+            v.mode = "LAND"  # as the autopilot names it
+
+    clock.tickers.append(low_battery)
+    with caplog.at_level("INFO", logger="skyroute.flight.landing"):
+        result = make_mission(v, clock, straight_plan([])).run()
+    assert failsafe and result.completed and result.landing_error_m < 0.3
+    assert "the autopilot is landing by itself" in caplog.text
+    assert not any(event is E.CONTROL_LOST for _, event, _ in result.history)
 
 
 def test_a_vehicle_that_stops_following_in_our_mode_is_given_its_mode_again(clock):

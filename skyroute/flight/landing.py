@@ -46,7 +46,8 @@ class LandingMixin:
         The hand-over comes once the vehicle is at that height (within 0.3 m) and over the point
         (:meth:`~.mission.Mission._at_goal`); at once if it is on the ground or has stopped coming down while told
         to for a second and the link's round trip (something below, or an estimate that reads high); at the latest
-        after the descent's time plus twice ``settle_s`` (autopilot seconds), wherever the vehicle is.
+        after the descent's time plus twice ``settle_s`` (autopilot seconds), wherever the vehicle is. A LAND the
+        autopilot switches to by itself on the way down (a failsafe's) is the landing (:meth:`_landing_over_goal`).
         """
         surface = 0.0 if self.surface_fn is None else float(self.surface_fn(north_m, east_m))
         floor = surface + self.handover_m
@@ -55,45 +56,52 @@ class LandingMixin:
             return
         speed = min(self.speeds.vertical_mps, 1.0)
         rate = self._autopilot_rate()
-        began = self.clock()
         limit_s = (start - floor) / speed + 2.0 * self.settle_s
-        heading = self._heading_rad if math.isfinite(self._heading_rad) else \
-            float(getattr(self.vehicle.telemetry, "heading_rad", 0.0) or 0.0)
-        self._near_goal_since = math.nan
-        stalled_at = math.nan
         # a vehicle told to come down starts to only after the link's round trip (autopilot seconds)
         stall_s = 1.0 + rate * float(getattr(self.vehicle, "round_trip_s", 0.0) or 0.0)
+        heading = self._heading_rad if math.isfinite(self._heading_rad) else \
+            float(getattr(self.vehicle.telemetry, "heading_rad", 0.0) or 0.0)
+        self._near_goal_since = stalled_at = math.nan
         log.info("coming down over (%.1f N, %.1f E) to %.1f m before landing", north_m, east_m, floor)
-        trim_at = began
-        while True:
-            now = self.clock()
-            elapsed = rate * (now - began)
-            carrot_m = max(floor, start - speed * elapsed)
-            t = self.vehicle.telemetry
-            q = self._unshifted(self._map_position())
-            off_m = math.hypot(q.north_m - north_m, q.east_m - east_m)
-            if carrot_m == floor and abs(q.altitude_m - floor) <= 0.3 and self._at_goal(np.array([north_m, east_m,
-                                                                                                   floor])):
-                return
-            descending = t.local_v_down_mps > 0.1
-            if q.altitude_m - carrot_m < 0.5 or descending:
-                stalled_at = math.nan
-            elif math.isnan(stalled_at):
-                stalled_at = elapsed
-            why = ("it is on the ground" if t.on_ground else
-                   "it stopped coming down" if elapsed - stalled_at >= stall_s else
-                   "not settled in time" if elapsed > limit_s else "")
-            if why:
-                log.info("%s %.1f s into the descent, %.2f m off the landing point, %.1f m above the map's surface: "
-                         "landing from there", why, elapsed, off_m, q.altitude_m - surface)
-                return
-            position = self._trim(np.array([north_m, east_m, carrot_m]), q, t, rate * (now - trim_at))
-            trim_at = now
-            if self.keep_off is not None:
-                position[:2] += self.keep_off.shift_ne
-            target = self._to_local(*position)
-            self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading)
-            self._tick()
+        began = trim_at = self.clock()
+        self._coming_down = True
+        try:
+            while True:
+                now = self.clock()
+                elapsed = rate * (now - began)
+                carrot_m = max(floor, start - speed * elapsed)
+                t = self.vehicle.telemetry
+                q = self._unshifted(self._map_position())
+                off_m = math.hypot(q.north_m - north_m, q.east_m - east_m)
+                if carrot_m == floor and abs(q.altitude_m - floor) <= 0.3 \
+                        and self._at_goal(np.array([north_m, east_m, floor])):
+                    return
+                if q.altitude_m - carrot_m < 0.5 or t.local_v_down_mps > 0.1:  # where told, or coming down
+                    stalled_at = math.nan
+                elif math.isnan(stalled_at):
+                    stalled_at = elapsed
+                why = ("the autopilot is landing by itself" if self._landing_over_goal() else
+                       "it is on the ground" if t.on_ground else
+                       "it stopped coming down" if elapsed - stalled_at >= stall_s else
+                       "not settled in time" if elapsed > limit_s else "")
+                if why:
+                    log.info("%s %.1f s into the descent, %.2f m off the landing point, %.1f m above the map's "
+                             "surface: landing from there", why, elapsed, off_m, q.altitude_m - surface)
+                    return
+                position = self._trim(np.array([north_m, east_m, carrot_m]), q, t, rate * (now - trim_at))
+                trim_at = now
+                if self.keep_off is not None:
+                    position[:2] += self.keep_off.shift_ne
+                target = self._to_local(*position)
+                self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading)
+                self._tick()
+        finally:
+            self._coming_down = False
+
+    def _landing_over_goal(self) -> bool:
+        """The autopilot switched to its own landing (a failsafe's: a low battery, a lost link) while we were
+        coming down over the goal (:meth:`_come_down`): that is the landing, not a mode to take back or hand over."""
+        return self._coming_down and self.vehicle.telemetry.mode == "LAND"
 
     def _await_touchdown(self) -> None:
         deadline = self.clock() + self.landing_timeout_s

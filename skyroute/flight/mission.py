@@ -236,7 +236,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self.stuck_mps, self.stuck_s, self._stuck_since = stuck_mps, stuck_s, math.nan
         self._trim_m = np.zeros(2)
         self.altitude_tolerance_m, self.corner_cut_m = altitude_tolerance_m, corner_cut_m
-        self.handover_m, self._heading_rad = handover_m, math.nan
+        self.handover_m, self._heading_rad, self._coming_down = handover_m, math.nan, False
         self.speeds = preflight.Speeds(cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps)
         self.lead_s, self.velocity_lag_s, self.brake_lag_s = lead_s, velocity_lag_s, 0.0
         self.drag, self._drag_at, self._drag_told = DragEstimate(), math.nan, False
@@ -380,7 +380,8 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self._sample()
         self._check_armed()
         self._check_local_frame()
-        if self.state in (S.TAKEOFF, S.WAYPOINT, S.REPLANNING) and not self.vehicle.in_control:
+        if self.state in (S.TAKEOFF, S.WAYPOINT, S.REPLANNING) and not self.vehicle.in_control \
+                and not self._landing_over_goal():
             self._recover(f"the autopilot left our flight mode for {self.vehicle.telemetry.mode or '?'}",
                           link_lost=False)
 

@@ -17,6 +17,7 @@ import pytest
 
 from skyroute.flight import drag as dg
 from skyroute.flight import follower as fw
+from skyroute.flight import keepoff
 from skyroute.flight import mission as m
 from skyroute.flight import path as fp
 from skyroute.flight.mission import MissionEvent as E
@@ -1756,6 +1757,19 @@ def test_the_descent_is_over_the_goal_itself_when_the_route_ends_in_its_cell(clo
     v = FakeVehicle(clock, start=(-100.0, 50.0))
     result = make_mission(v, clock, straight_plan([]), goal_ne=goal_ne).run()
     assert result.completed and result.landing_error_m == pytest.approx(error_m, abs=0.05)
+
+
+def test_a_lift_the_keep_off_holds_does_not_keep_the_descent_from_its_hand_over_height(clock, caplog):
+    """Something read below lifted the route 1 m (the keep-off); the descent sends no lift and hands over at 1.5 m
+    as flown, not after waiting out its time limit."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    mission = make_mission(v, clock, straight_plan([]))
+    mission.keep_off = keepoff.KeepOff(4.0)
+    clock.tickers.append(lambda dt: v.gotos and v.gotos[-1][2] > -9.9 and setattr(mission.keep_off, "lift_m", 1.0))
+    with caplog.at_level("INFO", logger="skyroute.flight.landing"):
+        result = mission.run()
+    assert result.completed and "coming down" in caplog.text and "not settled in time" not in caplog.text
+    assert v.gotos[-1][2] == pytest.approx(-1.5, abs=0.05)
 
 
 def test_a_descent_that_stops_short_is_handed_to_the_autopilots_landing_after_a_second(clock, caplog):

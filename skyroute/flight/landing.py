@@ -71,12 +71,15 @@ class LandingMixin:
                 elapsed = rate * (now - began)
                 carrot_m = max(floor, start - speed * elapsed)
                 t = self.vehicle.telemetry
-                q = self._unshifted(self._map_position())
+                # heights as flown (the keep-off's lift is not sent: coming down is the point), the horizontal
+                # relative to the route as the keep-off shifted it
+                p = self._map_position()
+                q = self._unshifted(p)
                 off_m = math.hypot(q.north_m - north_m, q.east_m - east_m)
-                if carrot_m == floor and abs(q.altitude_m - floor) <= 0.3 \
-                        and self._at_goal(np.array([north_m, east_m, floor])):
+                if carrot_m == floor and abs(p.altitude_m - floor) <= 0.3 \
+                        and self._at_goal(np.array([north_m, east_m, floor + q.altitude_m - p.altitude_m])):
                     return
-                if q.altitude_m - carrot_m < 0.5 or t.local_v_down_mps > 0.1:  # where told, or coming down
+                if p.altitude_m - carrot_m < 0.5 or t.local_v_down_mps > 0.1:  # where told, or coming down
                     stalled_at = math.nan
                 elif math.isnan(stalled_at):
                     stalled_at = elapsed
@@ -86,7 +89,7 @@ class LandingMixin:
                        "not settled in time" if elapsed > limit_s else "")
                 if why:
                     log.info("%s %.1f s into the descent, %.2f m off the landing point, %.1f m above the map's "
-                             "surface: landing from there", why, elapsed, off_m, q.altitude_m - surface)
+                             "surface: landing from there", why, elapsed, off_m, p.altitude_m - surface)
                     return
                 position = self._trim(np.array([north_m, east_m, carrot_m]), q, t, rate * (now - trim_at))
                 trim_at = now

@@ -131,6 +131,10 @@ def sector_minima(lo: np.ndarray, hi: np.ndarray, north_m: float, east_m: float,
     if (dist == 0.0).any():  # the sensor is inside a box: everything is touching
         out[:] = 0.0
         return out
+    near_enough = dist <= range_m  # a box farther than the range shows in no sector (nor on an edge ray)
+    if not near_enough.any():
+        return out
+    lo, hi, gap, dist = lo[near_enough], hi[near_enough], gap[near_enough], dist[near_enough]
     bearing = np.arctan2(gap[:, 1], gap[:, 0])
     index = np.floor((bearing - first_centre_rad + width / 2.0) / width).astype(np.int64) % sectors
     np.minimum.at(out, index, dist)

@@ -197,6 +197,20 @@ def test_project_finds_points_between_the_arcs_samples_and_never_goes_back_on_th
         assert p.project(p.point_at(s_mid - 0.1)[0], from_s_m=s_mid) == pytest.approx(s_mid, abs=1e-9)
 
 
+def test_project_gives_the_same_arc_length_over_few_segments_as_over_many(monkeypatch):
+    # project() looks at a few segments in Python floats and at more with NumPy: both must agree everywhere
+    rng = np.random.default_rng(5)
+    wps = np.column_stack([np.cumsum(rng.uniform(-15, 15, (12, 2)), axis=0), rng.uniform(4, 8, 12)])
+    p = fp.smooth_path(wps)
+    probes = [(p.point_at(s)[0] + rng.normal(0.0, 2.0, 3), s + rng.uniform(-3, 3), window)
+              for s in rng.uniform(0, p.length_m, 300) for window in (2.0, 30.0)]
+    few = [p.project(q, from_s_m=max(s, 0.0), window_m=w) for q, s, w in probes]
+    monkeypatch.setattr(fp, "_FEW_SEGMENTS", 0)  # the NumPy branch for every window
+    many = [p.project(q, from_s_m=max(s, 0.0), window_m=w) for q, s, w in probes]
+    assert few == pytest.approx(many, abs=1e-9)
+    assert sum(few[k] != few[k + 1] for k in range(0, len(few), 2)) > 50  # the windows did matter somewhere
+
+
 def test_a_single_straight_leg_ends_at_its_end_and_brakes_to_it():
     p = fp.smooth_path(np.array([[0.0, 0.0, 5.0], [10.0, 0.0, 5.0]]), cruise_mps=10.0, accel_mps2=3.0)
     assert p.point_at(10.0)[0].tolist() == [10.0, 0.0, 5.0] and p.point_at(25.0)[0].tolist() == [10.0, 0.0, 5.0]

@@ -68,6 +68,15 @@ def test_sector_minima_match_a_dense_ray_fan_on_random_boxes(sectors, first_cent
     assert np.all(dense[both] - exact[both] <= dense[both] * width * 2 + 1e-6)
 
 
+def test_boxes_beyond_the_range_change_no_sector():
+    near_lo, near_hi = np.array([[9.0, -1.0], [-5.0, 3.0]]), np.array([[11.0, 1.0], [-3.0, 6.0]])
+    far_lo, far_hi = np.array([[40.0, -2.0], [-3.0, 31.0]]), np.array([[45.0, 2.0], [3.0, 35.0]])
+    both = sector_minima(np.vstack([near_lo, far_lo]), np.vstack([near_hi, far_hi]), 0.0, 0.0, 72, 0.0, 30.0)
+    assert both.tolist() == sector_minima(near_lo, near_hi, 0.0, 0.0, 72, 0.0, 30.0).tolist()
+    assert np.isfinite(both).sum() >= 4
+    assert np.isinf(sector_minima(far_lo, far_hi, 0.0, 0.0, 72, 0.0, 30.0)).all()
+
+
 def test_sector_minima_see_the_nearest_face_point_between_two_edge_rays():
     # A long wall 10 m east, from north -50 to 50: the east 45 degree sector's nearest point is the wall's foot
     # (10 m), which neither of that sector's edge rays (at 67.5 and 112.5 degrees, 10.8 m) touches.

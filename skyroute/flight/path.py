@@ -8,9 +8,11 @@ radius ``r``, braking at ``accel_mps2`` before every slower part and before the 
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -197,6 +199,10 @@ def _merged_pair(a, b, c, d, room_fn: RoomFn, room_m: float, max_cut_m: float, s
     return _Corner(x, 2, min_radius, room)
 
 
+#: :meth:`SmoothPath.project` looks at this many segments or fewer in Python floats, more with NumPy
+_FEW_SEGMENTS = 8
+
+
 @dataclass(frozen=True)
 class SmoothPath:
     """The planned polyline with rounded corners and the speed to fly at each point of it (map frame).
@@ -229,12 +235,25 @@ class SmoothPath:
                                speed_cap_fn=speed_cap_fn)
         return SmoothPath(self.points, self.s_m, seg, speed, self.waypoint_s_m, float(accel_mps2), radii)
 
-    @property
+    @cached_property
     def length_m(self) -> float:
         return float(self.s_m[-1])
 
+    # The follower asks these at every poll: Python floats and bisect, not NumPy scalars (a few times faster).
+    @cached_property
+    def _s_list(self) -> list[float]:
+        return self.s_m.tolist()
+
+    @cached_property
+    def _point_rows(self) -> list[list[float]]:
+        return self.points.tolist()
+
+    @cached_property
+    def _speeds(self) -> tuple[list[float], list[float]]:
+        return self.segment_speed_mps.tolist(), self.point_speed_mps.tolist()
+
     def _segment(self, s_m: float) -> int:
-        j = int(np.searchsorted(self.s_m, s_m, side="right")) - 1
+        j = bisect.bisect_right(self._s_list, s_m) - 1
         return min(max(j, 0), max(len(self.points) - 2, 0))
 
     def speed_at(self, s_m: float) -> float:
@@ -242,8 +261,9 @@ class SmoothPath:
         if len(self.points) < 2 or s_m >= self.length_m:
             return 0.0
         j = self._segment(s_m)
-        braking = math.sqrt(self.point_speed_mps[j + 1] ** 2 + 2.0 * self.accel_mps2 * max(self.s_m[j + 1] - s_m, 0.0))
-        return float(min(self.segment_speed_mps[j], braking))
+        segment_speed, point_speed = self._speeds
+        braking = math.sqrt(point_speed[j + 1] ** 2 + 2.0 * self.accel_mps2 * max(self._s_list[j + 1] - s_m, 0.0))
+        return float(min(segment_speed[j], braking))
 
     def point_at(self, s_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Position (3,) and unit tangent (3,) at arc length ``s_m`` (clamped to the path)."""
@@ -251,10 +271,16 @@ class SmoothPath:
             return self.points[0].copy(), np.zeros(3)
         s_m = min(max(s_m, 0.0), self.length_m)
         j = self._segment(s_m)
-        a, b = self.points[j], self.points[j + 1]
-        ds = self.s_m[j + 1] - self.s_m[j]
-        tangent = (b - a) / ds if ds > 1e-12 else np.zeros(3)
-        return a + tangent * (s_m - self.s_m[j]), tangent
+        a, b = self._point_rows[j], self._point_rows[j + 1]
+        s = self._s_list
+        ds = s[j + 1] - s[j]
+        if ds > 1e-12:
+            tangent = [(b[0] - a[0]) / ds, (b[1] - a[1]) / ds, (b[2] - a[2]) / ds]
+        else:
+            tangent = [0.0, 0.0, 0.0]
+        along = s_m - s[j]
+        point = [a[0] + tangent[0] * along, a[1] + tangent[1] * along, a[2] + tangent[2] * along]
+        return np.array(point), np.array(tangent)
 
     def project(self, position, from_s_m: float = 0.0, window_m: float = 30.0) -> float:
         """Arc length of the path point closest to ``position`` (3,), searching from ``from_s_m`` to ``window_m``
@@ -264,23 +290,50 @@ class SmoothPath:
             return 0.0
         s = self.s_m
         j0 = self._segment(from_s_m)
-        j1 = int(np.searchsorted(s[:-1], from_s_m + window_m, side="right"))  # segments starting in the window
+        j1 = bisect.bisect_right(self._s_list, from_s_m + window_m, 0, len(s) - 1)  # segments starting in the window
         if j1 <= j0:
             return from_s_m
-        a, b = self.points[j0:j1], self.points[j0 + 1:j1 + 1]
-        ds = s[j0 + 1:j1 + 1] - s[j0:j1]
-        ab = b - a
-        some = ds > 1e-12
-        safe = np.where(some, ds, 1.0)
+        if j1 - j0 <= _FEW_SEGMENTS:
+            return self._project_few(p.tolist(), from_s_m, j0, j1)
+        a = self.points[j0:j1]
+        ab, ds, some, safe = self._legs
+        ab, ds, some, safe = ab[j0:j1], ds[j0:j1], some[j0:j1], safe[j0:j1]
         lowest = np.where(some, np.maximum(0.0, (from_s_m - s[j0:j1]) / safe), 0.0)  # not behind from_s_m
         f = np.where(some, np.minimum(np.maximum(np.einsum("ij,ij->i", p - a, ab) / safe**2, lowest), 1.0), 0.0)
         gap = a + f[:, None] * ab - p
         d = np.sqrt(np.einsum("ij,ij->i", gap, gap))
-        best_d, best_s = math.inf, from_s_m
+        best_d, best_k = math.inf, -1
         for k, dk in enumerate(d.tolist()):  # the first of near-equal distances wins, as the path runs
             if dk < best_d - 1e-9:
-                best_d, best_s = dk, float(s[j0 + k] + f[k] * ds[k])
-        return best_s
+                best_d, best_k = dk, k
+        return float(s[j0 + best_k] + f[best_k] * ds[best_k]) if best_k >= 0 else from_s_m
+
+    def _project_few(self, p: list[float], from_s_m: float, j0: int, j1: int) -> float:
+        """:meth:`project` over segments ``j0:j1`` in Python floats: on a straight leg the window holds one or two,
+        where NumPy's per-call cost is most of the work."""
+        s, rows = self._s_list, self._point_rows
+        best_d, best_s = math.inf, from_s_m
+        for j in range(j0, j1):
+            a, b = rows[j], rows[j + 1]
+            ds = s[j + 1] - s[j]
+            if ds > 1e-12:
+                ab = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+                dot = (p[0] - a[0]) * ab[0] + (p[1] - a[1]) * ab[1] + (p[2] - a[2]) * ab[2]
+                f = min(max(dot / ds**2, max(0.0, (from_s_m - s[j]) / ds)), 1.0)
+            else:
+                ab, f = (0.0, 0.0, 0.0), 0.0
+            gap = (a[0] + f * ab[0] - p[0], a[1] + f * ab[1] - p[1], a[2] + f * ab[2] - p[2])
+            d = math.sqrt(gap[0] ** 2 + gap[1] ** 2 + gap[2] ** 2)
+            if d < best_d - 1e-9:  # the first of near-equal distances wins, as the path runs
+                best_d, best_s = d, s[j] + f * ds
+        return float(best_s)
+
+    @cached_property
+    def _legs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Each segment's vector (N-1, 3), arc length, whether it has any, and the length to divide by."""
+        ds = self.s_m[1:] - self.s_m[:-1]
+        some = ds > 1e-12
+        return self.points[1:] - self.points[:-1], ds, some, np.where(some, ds, 1.0)
 
 
 def smooth_path(waypoints: np.ndarray, *, corner_cut_m: float = 0.5, cruise_mps: float = 10.0,

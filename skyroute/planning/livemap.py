@@ -203,6 +203,7 @@ class LiveMap:
         self.scans = 0
         self.map_cells_seen_free = 0
         self.wide_sectors = False  # a scan's sectors were wider than FINE_HALF_RAD (their whole arcs are marked)
+        self._layout: tuple[tuple[bytes, float], bool] | None = None  # the last scan's sector layout, side by side?
 
     @classmethod
     def for_grid_map(cls, grid_map, footprint: np.ndarray | None, **kwargs) -> LiveMap:
@@ -359,8 +360,23 @@ class LiveMap:
             np.minimum.at(out, sector[ok], d[ok])
         # A building that only grazes a sector (its corner inside the wedge, no sample point of it there) meets
         # one of the sector's edges: the range along both edge rays bounds the sector's minimum from above.
+        k = len(centres)
+        if self._side_by_side(centres, half_width):
+            # Sectors side by side round the circle share their edges: each ray is marched once.
+            lower = self._ray_ranges(p, window, centres - half_width, range_m)
+            return np.minimum(out, np.minimum(lower, np.roll(lower, -1)))
         edges = self._ray_ranges(p, window, np.concatenate([centres - half_width, centres + half_width]), range_m)
-        return np.minimum(out, np.minimum(edges[:len(centres)], edges[len(centres):]))
+        return np.minimum(out, np.minimum(edges[:k], edges[k:]))
+
+    def _side_by_side(self, centres: np.ndarray, half_width: float) -> bool:
+        """Whether the sectors ``centres +- half_width`` (rad) lie side by side round the whole circle, each one's
+        upper edge the next one's lower edge (a sensor's fixed layout: the last answer is kept)."""
+        key = (centres.tobytes(), half_width)
+        if self._layout is None or self._layout[0] != key:
+            k = len(centres)
+            gaps = _wrap(np.roll(centres, -1) - centres)
+            self._layout = (key, k > 1 and float(np.abs(gaps - 2.0 * half_width).max()) <= 1e-9)
+        return self._layout[1]
 
     def _ray_ranges(self, p: np.ndarray, window, bearings: np.ndarray, range_m: float) -> np.ndarray:
         """Distance along each bearing from ``p`` to the first footprint cell inside ``window`` (marched at a
@@ -397,14 +413,15 @@ class LiveMap:
         predicted = self._predicted(p, window, centres, half, max_range_m, float(bearing_error_rad))
         reach = np.where(np.isinf(dist), max_range_m, dist)  # NaN stays NaN: nothing seen
         # Seen free: cells wholly closer than the reading (with half a metre to spare) in a known sector.
-        ii, jj = np.mgrid[i0:i1, j0:j1]
-        cn = ii + self.north_offset + 0.5 - p[0]
-        ce = jj + self.east_offset + 0.5 - p[1]
+        cn, ce = np.ogrid[i0:i1, j0:j1]
+        cn = cn + self.north_offset + 0.5 - p[0]
+        ce = ce + self.east_offset + 0.5 - p[1]
         r = np.hypot(cn, ce)
         sector = self._sector_of(np.arctan2(ce, cn).ravel(), centres, half).reshape(r.shape)
         limit = np.where(sector >= 0, reach[np.maximum(sector, 0)], np.nan)
         free = (sector >= 0) & (r + 0.71 + 0.5 < limit) & (r <= max_range_m)
-        fi, fj = ii[free], jj[free]
+        fi, fj = np.nonzero(free)
+        fi, fj = fi + i0, fj + j0
         self.free_count[fi, fj] = np.minimum(self.free_count[fi, fj].astype(np.int64) + 1, 65535)
         self.known[fi, fj] = True
         if self.footprint is not None:
@@ -415,7 +432,6 @@ class LiveMap:
         explained = int((finite & ~unexplained).sum())
         lo, hi = self._hit_spans(centres, half, dist, unexplained)
         hit_cells = self._arc_cells(p, lo, hi, dist[unexplained], tolerance)
-        before = self.hits.copy()
         if len(hit_cells):
             hi, hj = hit_cells[:, 0], hit_cells[:, 1]
             i0, i1 = min(i0, int(hi.min())), max(i1, int(hi.max()) + 1)  # an arc's cell at a wedge's rim
@@ -423,14 +439,16 @@ class LiveMap:
             self.hit_count[hi, hj] = np.minimum(self.hit_count[hi, hj].astype(np.int64) + 1, 65535)
             self.known[hi, hj] = True
         sub = (slice(i0, i1), slice(j0, j1))
+        before = self.hits[sub].copy()
         counts = self.hit_count[sub].astype(np.int64)
         outweighed = self.free_count[sub].astype(np.int64) >= counts + self.free_to_clear
-        dropped = self.hits[sub] & outweighed
+        dropped = before & outweighed
         self.once_dropped[sub] |= dropped
-        self.hits[sub] = (counts >= self.confirm_hits) & ~outweighed
-        changed = self.hits[sub] != before[sub]
-        new_hits = int((self.hits[sub] & ~before[sub]).sum())
-        cleared = int((before[sub] & ~self.hits[sub]).sum())
+        after = (counts >= self.confirm_hits) & ~outweighed
+        self.hits[sub] = after
+        changed = after != before
+        new_hits = int((after & ~before).sum())
+        cleared = int((before & ~after).sum())
         grid_changed = False
         if changed.any():
             grid_changed = self._reinflate(np.argwhere(changed) + (i0, j0))
@@ -531,14 +549,16 @@ class LiveMap:
         between bearings ``lo`` and ``hi`` (rad)."""
         if len(dist) == 0:
             return np.empty((0, 2), np.int64)
-        points, arcs = [], []
-        for k, (a, b, d) in enumerate(zip(lo, hi, dist)):
-            d = max(float(d), 0.0)
-            steps = max(2, int(math.ceil((b - a) * max(d, 1.0) / self.arc_step_m)) + 1)
-            angles = np.linspace(a, b, steps)
-            points.append(p + d * np.column_stack([np.cos(angles), np.sin(angles)]))
-            arcs.append(np.full(steps, k))
-        pts, arc = np.vstack(points), np.concatenate(arcs)
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        d = np.maximum(np.asarray(dist, float), 0.0)
+        steps = np.maximum(2, np.ceil((hi - lo) * np.maximum(d, 1.0) / self.arc_step_m).astype(np.int64) + 1)
+        arc = np.repeat(np.arange(len(d)), steps)
+        first = np.cumsum(steps) - steps
+        along = np.arange(len(arc)) - first[arc]  # each sample's index on its arc: np.linspace's arithmetic
+        angles = along * ((hi - lo) / (steps - 1))[arc] + lo[arc]
+        angles[first + steps - 1] = hi  # the arc's last sample is its end bearing exactly
+        ne = np.column_stack([np.cos(angles), np.sin(angles)])
+        pts = p + d[arc, None] * ne
         cells = np.floor(pts - (self.north_offset, self.east_offset)).astype(np.int64)
         n, m = self.shape
         on = (cells[:, 0] >= 0) & (cells[:, 0] < n) & (cells[:, 1] >= 0) & (cells[:, 1] < m)
@@ -554,7 +574,10 @@ class LiveMap:
         if dropped.any():
             others = np.bincount(arc[~dropped], minlength=len(dist)) > 0
             cells = cells[~dropped | ~others[arc]]
-        return np.unique(cells, axis=0) if len(cells) else np.empty((0, 2), np.int64)
+        if not len(cells):
+            return np.empty((0, 2), np.int64)
+        flat = np.unique(cells[:, 0] * m + cells[:, 1])  # row-major: np.unique(cells, axis=0)'s order, faster
+        return np.column_stack([flat // m, flat % m])
 
     def set_margin(self, margin_m: float) -> bool:
         """Inflate the observed obstacles by ``margin_m`` (m, at most the safety margin) from now on, every one

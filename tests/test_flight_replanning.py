@@ -142,6 +142,29 @@ def test_scans_from_below_the_flight_altitude_are_dropped():
     assert len(obstacles.at) == 2 and sensing.low_scans == 1
 
 
+def test_scans_from_below_the_flight_altitude_still_place_the_vehicle_at_their_own_altitude():
+    # the descent to land: the layer leaves those scans out, the fix matches them against the map where they were
+    # read, so its correction follows the estimate's drift down to the touchdown
+    class RecordingFix:
+        def __init__(self):
+            self.calls = []
+
+        def observe(self, time_s, north_m, east_m, *rest, bearing_error_rad=0.0, altitude_m=None):
+            self.calls.append((north_m, east_m, altitude_m))
+
+        correction_ne, bound_m = (0.0, 0.0), 1.0
+
+        def describe(self):
+            return ""
+
+    obstacles, fix = PlacesMap(), RecordingFix()
+    scans = [FakeScan((10.0, 20.0), local_down_m=down, position_error_m=3.0) for down in (-1.0, -5.2)]
+    sensing = Sensing(SensingVehicle(*scans, FakeScan(None, local_down_m=-2.0)), obstacles, lambda: 0.0, fix=fix)
+    sensing.drain((0.0, 0.0), (100.0, -50.0), offset_down_m=-1.0, min_altitude_m=4.0)
+    assert obstacles.at == [(110.0, -30.0)] and sensing.low_scans == 2  # only the one at 6.2 m in the layer
+    assert fix.calls == [(110.0, -30.0, 2.0), (110.0, -30.0, None)]  # the unstamped one places nothing
+
+
 def test_single_sectors_read_at_one_place_make_one_layer_update_and_whole_scans_their_own():
     calls = []
 

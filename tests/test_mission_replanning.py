@@ -566,6 +566,40 @@ def test_scans_matched_to_the_map_bring_a_drifted_estimate_back_onto_the_route(m
 
 
 
+@pytest.mark.parametrize("reading", [True, False], ids=["reading-on-the-way-down", "not-reading"])
+def test_an_estimate_drifting_during_the_descent_over_the_goal_is_followed_by_the_fix(reading, monkeypatch):
+    """The estimate drifts 2 m north (1 m/s) once the vehicle starts coming down over the goal, 15 m north of the
+    blocks: the scans taken on the way down, from below the flight altitude, are matched to the blocks' faces at
+    their own altitude and the vehicle lands at the goal in truth; read nothing from the top of the descent (as
+    before) and it lands where the estimate drifted it, 2 m off."""
+    from skyroute.planning.scanmatch import MapSurface, PositionFix
+
+    clock = FakeClock()
+    v = _DriftingVehicle(clock, STALE, (0.0, 0.0), accuracy_m=1.0, start=(START[0] - OFFSET.north_m,
+                                                                             START[1] - OFFSET.east_m))
+    fix = PositionFix(MapSurface(STALE, ALT), obstacles=STALE)
+    mission = make_mission(v, clock, _plan_fn([]), goal_ne=GOAL, obstacles=_obstacles(), position_fix=fix,
+                           replan_errors=(PlanningError,), replan_margin_m=SAFETY, leg_timeout_s=120.0)
+    if not reading:
+        monkeypatch.setattr(mission, "_sense_coming_down", lambda p: None)
+
+    def drift(dt):  # the estimate moves north, the vehicle does not
+        if v.gotos and v.gotos[-1][2] > -ALT + 0.5 and v.error_ne[0] < 2.0:
+            step = min(1.0 * dt, 2.0 - v.error_ne[0])
+            v.error_ne[0] += step
+            v.telemetry.north_m += step
+
+    clock.tickers.append(drift)
+    result = mission.run()
+    assert result.completed and v.error_ne[0] == pytest.approx(2.0)
+    landed_m = math.dist(v.truth[-1], GOAL)
+    if reading:
+        assert fix.correction_ne[0] == pytest.approx(-2.0, abs=0.3)
+        assert landed_m < 0.75
+    else:
+        assert landed_m > 1.5
+
+
 @pytest.mark.parametrize("keep_off", [True, False])
 def test_a_wall_the_sensor_reads_closer_than_the_estimate_says_is_kept_off(keep_off, monkeypatch):
     """A route up the central street 3.5 m from the east blocks' faces (the margin is 3 m), the estimate 2 m west

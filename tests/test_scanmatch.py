@@ -56,6 +56,20 @@ def test_only_boxes_through_the_sensors_plane_are_faces():
     assert len(MapSurface(boxes, ALT)) == 1
 
 
+def test_a_scan_from_the_descent_is_matched_against_the_map_at_its_own_altitude():
+    # a dead end of 4 m buildings under a fix made for 10 m: coming down through 2 m, the sensor reads them
+    low = DEAD_END.copy()
+    low[:, 2] = low[:, 5] = 2.0
+    d = _scan(low, 0.0, 0.0, plane_m=2.0)
+    fix = PositionFix(MapSurface(low, 10.0), obstacles=low)
+    assert fix.observe(0.0, 0.0, 1.0, BEARINGS, HALF, d, 30.0, 3.0, altitude_m=2.0).offset_ne[1] == pytest.approx(
+        -1.0, abs=0.2)  # placed 1 m east: back onto the low buildings
+    assert fix.surface_at(2.4) is fix.surface_at(1.6) and fix.surface_at(9.7) is fix.surface
+    # without the map's boxes the fix knows only its own altitude, where nothing stands
+    assert PositionFix(MapSurface(low, 10.0)).observe(0.0, 0.0, 1.0, BEARINGS, HALF, d, 30.0, 3.0,
+                                                      altitude_m=2.0) is None
+
+
 def test_a_scan_placed_off_is_matched_back_onto_the_map(bundled):
     """Random free places in the bundled city, the scan placed up to ~3 m off: in every direction the match
     says it constrains, the shift undoes the error to a few decimetres."""

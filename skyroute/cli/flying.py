@@ -242,10 +242,11 @@ def obstacle_map(setting: Setting, goal_ne: Sequence[float], planner: str):
 
 
 def position_fix(setting: Setting):
-    """Scan matching against the map's buildings at the flight altitude (``skyroute.planning.scanmatch``)."""
+    """Scan matching against the map's buildings at the flight altitude, and at their own altitude for scans from
+    the climb and the descent (``skyroute.planning.scanmatch``)."""
     from skyroute.planning.scanmatch import MapSurface, PositionFix
 
-    return PositionFix(MapSurface(setting.city.obstacles, setting.altitude_m))
+    return PositionFix(MapSurface(setting.city.obstacles, setting.altitude_m), obstacles=setting.city.obstacles)
 
 
 def sensed(mission) -> dict:

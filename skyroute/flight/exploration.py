@@ -182,6 +182,9 @@ class ExplorationMission(Mission):
         """Not the mission's path check: exploring, every tick feeds the live map and the leg is re-decided
         (:meth:`_tick`), which also re-routes round what the sensor shows."""
 
+    def _sense_coming_down(self, p) -> None:
+        """Nothing more: exploring, every tick feeds the live map (:meth:`_tick`)."""
+
     def _last_leg(self) -> bool:
         return self._final_leg
 

@@ -108,7 +108,7 @@ class PositionFix(Protocol):
 
     def observe(self, time_s: float, north_m: float, east_m: float, bearings_rad, half_width_rad: float,
                 distances_m, max_range_m: float, position_error_m: float, *,
-                bearing_error_rad: float = 0.0) -> object: ...
+                bearing_error_rad: float = 0.0, altitude_m: float | None = None) -> object: ...
 
     def describe(self) -> str: ...
 
@@ -280,7 +280,9 @@ class Sensing:
         there, moved into the map frame by ``offset_ne`` (map minus local, north and east m); others (or all,
         without an offset) at ``position_ne``, the vehicle's map position now. One stamped with its down
         coordinate (``local_down_m``) from below ``min_altitude_m`` (map altitude, with ``offset_down_m`` map
-        minus local down) is dropped: climbing or sinking, the sensor sees roofs the layer's footprint leaves out."""
+        minus local down) is not the layer's: climbing or sinking, the sensor sees roofs the layer's footprint
+        leaves out. It still places the vehicle: the fix matches it against the map at its own altitude, so the
+        correction follows a drifting estimate down to the landing (:meth:`_fix_only`)."""
         readings = getattr(self.vehicle, "sensor_readings", None)
         if readings is None:
             return False
@@ -308,15 +310,12 @@ class Sensing:
                 if down is not None and offset_down_m is not None and min_altitude_m is not None \
                         and -(down + offset_down_m) < min_altitude_m:
                     self.low_scans += 1
+                    self._fix_only(r, offset, -(down + offset_down_m))
                     continue
                 if self.keep_off is not None:
                     self.keep_off.observe(r)
                 at = getattr(r, "local_ne", None)
-                bearings = np.asarray(r.bearings_rad, float)
-                distances, max_range = np.asarray(r.distances_m, float), float(r.max_range_m)
-                if max_range > self.horizon_m:  # farther than the horizon reads as nothing within it
-                    distances = np.where(distances >= self.horizon_m, np.inf, distances)
-                    max_range = self.horizon_m
+                bearings, distances, max_range = self._within_horizon(r)
                 pos_err = float(getattr(r, "position_error_m", 0.0))
                 if at is None or offset is None:
                     sn, se = n, e  # the mission's map position: corrected already
@@ -358,15 +357,36 @@ class Sensing:
         self.dropped += len(got) - room
         return got[-room:]
 
+    def _within_horizon(self, r) -> tuple[np.ndarray, np.ndarray, float]:
+        """A scan's bearings, distances and range, read no farther than :attr:`horizon_m`."""
+        bearings = np.asarray(r.bearings_rad, float)
+        distances, max_range = np.asarray(r.distances_m, float), float(r.max_range_m)
+        if max_range > self.horizon_m:  # farther than the horizon reads as nothing within it
+            distances = np.where(distances >= self.horizon_m, np.inf, distances)
+            max_range = self.horizon_m
+        return bearings, distances, max_range
+
+    def _fix_only(self, r, offset: tuple[float, float] | None, altitude_m: float) -> None:
+        """A stamped scan from below the layer's altitude, for the fix alone (matched at ``altitude_m``, m above
+        the map's ground): without it the correction goes stale from the top of the descent, and a drifting
+        estimate moves the vehicle off the goal on the way down."""
+        at = getattr(r, "local_ne", None)
+        if self.fix is None or at is None or offset is None:
+            return
+        bearings, distances, max_range = self._within_horizon(r)
+        self._corrected(r, at[0] + offset[0], at[1] + offset[1], bearings, distances, max_range,
+                        float(getattr(r, "position_error_m", 0.0)), altitude_m=altitude_m)
+
     def _corrected(self, r, north_m: float, east_m: float, bearings: np.ndarray, distances_m: np.ndarray,
-                   max_range_m: float, position_error_m: float):
+                   max_range_m: float, position_error_m: float, altitude_m: float | None = None):
         """A stamped reading's map position corrected by the fix (matched first: a whole scan, or ArduPilot's
         sectors gathered by the fix over a few cycles), and how far off it may still be."""
         fix = self.fix
         t = float(getattr(r, "time_s", math.nan))
+        extra = {} if altitude_m is None else {"altitude_m": altitude_m}
         fix.observe(t if math.isfinite(t) else self.clock(), north_m, east_m, bearings, float(r.half_width_rad),
                     distances_m, max_range_m, position_error_m,
-                    bearing_error_rad=float(getattr(r, "bearing_error_rad", 0.0)))
+                    bearing_error_rad=float(getattr(r, "bearing_error_rad", 0.0)), **extra)
         cn, ce = fix.correction_ne
         bound = fix.bound_m
         now = self.clock()
@@ -395,6 +415,15 @@ class Sensing:
         if blockage is None:
             self._oldest_s = math.nan
         return blockage
+
+    def keep_up(self, position_ne: Sequence[float], offset_ne: Sequence[float] | None = None, **below) -> None:
+        """Drain the readings with no path to check (the descent over the goal): the layer, the keep-off and the
+        fix stay current (see :meth:`drain`)."""
+        if self.active:
+            self.drain(position_ne, offset_ne, **below)
+        else:
+            self.drain(position_ne)
+        self._oldest_s = math.nan
 
     def latency_ms(self) -> float:
         """Milliseconds since the oldest reading behind the current blockage arrived (NaN if unknown)."""
@@ -507,6 +536,13 @@ class ReplanningMixin:
         blockage = self.sensing.step((p.north_m, p.east_m), waypoints[i:, :2], self._offset_ne(), **self._low())
         if blockage is not None:
             raise _Blocked(blockage)
+
+    def _sense_coming_down(self, p) -> None:
+        """Feed the readings while coming down over the goal (:meth:`~.landing.LandingMixin._come_down`): the fix
+        keeps placing the vehicle (scans from below the flight altitude are matched at their own), the keep-off
+        keeps reading what stands round it. Without this nothing was read from the top of the descent to the
+        touchdown, and the correction the vehicle came down with was the one it had there."""
+        self.sensing.keep_up((p.north_m, p.east_m), self._offset_ne(), **self._low())
 
     def _sight_cap_mps(self, p, direction_ne) -> float:
         """Never outrun the sensor: while it streams, the fastest speed (m/s) along ``direction_ne`` (the path's,

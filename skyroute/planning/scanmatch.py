@@ -48,6 +48,9 @@ GATHER_S = 0.25
 #: A box whose top may be under the sensor and that cuts this far (m) into a reading's arc was passed over by
 #: the reading (:meth:`MapSurface.arc_distance`).
 PASSED_OVER_M = 0.3
+#: Scans from below or above the fix's altitude (climbing after the takeoff, coming down to land) are matched
+#: against the map's boxes at their own altitude, to this step (m).
+SURFACE_STEP_M = 1.0
 #: A match needs this many readings on the map's faces.
 MIN_INLIERS = 10
 #: A direction is constrained by a scan when at least this many readings' faces face it (the eigenvalues of the
@@ -89,6 +92,7 @@ class MapSurface:
     def __init__(self, obstacles: np.ndarray, altitude_m: float, *, below_m: float = 1.0, above_m: float = 1.0,
                  bucket_m: float = 16.0) -> None:
         obs = np.asarray(obstacles, float).reshape(-1, 6)
+        self.altitude_m = float(altitude_m)
         keep = (obs[:, 2] + obs[:, 5] >= altitude_m - below_m) & (obs[:, 2] - obs[:, 5] <= altitude_m)
         self.centres = obs[keep, :2].copy()
         self.halves = obs[keep, 3:5].copy()
@@ -352,6 +356,7 @@ class _Reading(NamedTuple):
     max_range_m: float
     position_error_m: float
     bearing_error_rad: float
+    surface: MapSurface | None = None
 
 
 class PositionFix:
@@ -361,8 +366,11 @@ class PositionFix:
     scan's own bound (``position_error_m``: :data:`SIGMAS` times the stated accuracy), and it is zero while no
     scan states an accuracy (nothing says the estimate may be off)."""
 
-    def __init__(self, surface: MapSurface, *, correlation_s: float = 20.0, search_every_s: float = 1.0) -> None:
+    def __init__(self, surface: MapSurface, *, obstacles: np.ndarray | None = None, correlation_s: float = 20.0,
+                 search_every_s: float = 1.0) -> None:
         self.surface = surface
+        self._obstacles = None if obstacles is None else np.asarray(obstacles, float).reshape(-1, 6)
+        self._surfaces: dict[int, MapSurface] = {}
         self.estimate = DriftEstimate(correlation_s=correlation_s)
         self.search_every_s = float(search_every_s)
         self._limit_m = 0.0
@@ -393,38 +401,53 @@ class PositionFix:
         return (f"correction ({cn:+.2f} N, {ce:+.2f} E) m, bound {self.bound_m:.2f} m; {e.accepted} scans matched, "
                 f"{e.rejected} set aside, {e.resets} restarts")
 
+    def surface_at(self, altitude_m: float | None) -> MapSurface:
+        """The map's boxes at ``altitude_m`` (m above the map's ground, to :data:`SURFACE_STEP_M`): the surface
+        the fix was made with when None, within half a step of its altitude, or without the map's boxes."""
+        if altitude_m is None or self._obstacles is None \
+                or abs(altitude_m - self.surface.altitude_m) < 0.5 * SURFACE_STEP_M:
+            return self.surface
+        key = max(round(altitude_m / SURFACE_STEP_M), 0)
+        if key not in self._surfaces:
+            self._surfaces[key] = MapSurface(self._obstacles, key * SURFACE_STEP_M)
+        return self._surfaces[key]
+
     def observe(self, time_s: float, north_m: float, east_m: float, bearings_rad, half_width_rad: float,
                 distances_m, max_range_m: float, position_error_m: float, *,
-                bearing_error_rad: float = 0.0) -> Match | None:
+                bearing_error_rad: float = 0.0, altitude_m: float | None = None) -> Match | None:
         """One scan placed at the uncorrected map position ``(north_m, east_m)`` at ``time_s`` (s, any clock that
         runs with the vehicle's), whose placement may be off by ``position_error_m`` (0: unknown, nothing done) and
-        whose bearings by ``bearing_error_rad`` beyond the heading estimate's own error. A scan of fewer readings
-        than a match needs (ArduPilot's one sector per message) is gathered with those that follow it for
-        :data:`GATHER_S`, each at its own position, and matched with them: the match is returned then."""
-        if not position_error_m > 0 or half_width_rad > MAX_HALF_WIDTH_RAD or len(self.surface) == 0:
+        whose bearings by ``bearing_error_rad`` beyond the heading estimate's own error, taken at ``altitude_m``
+        (m above the map's ground; None: the fix's own, :meth:`surface_at`). A scan of fewer readings than a match
+        needs (ArduPilot's one sector per message) is gathered with those that follow it for :data:`GATHER_S`,
+        each at its own position, and matched with them: the match is returned then."""
+        surface = self.surface_at(altitude_m)
+        if not position_error_m > 0 or half_width_rad > MAX_HALF_WIDTH_RAD or len(surface) == 0:
             return None
         bearings = np.atleast_1d(np.asarray(bearings_rad, float))
         if len(bearings) >= MIN_INLIERS:
-            return self._match(time_s, north_m, east_m, bearings, half_width_rad, distances_m, max_range_m,
+            return self._match(surface, time_s, north_m, east_m, bearings, half_width_rad, distances_m, max_range_m,
                                position_error_m, bearing_error_rad)
         g = self._gathered
         if g and (g[0].half_width_rad != half_width_rad or g[0].max_range_m != max_range_m
-                  or not 0.0 <= time_s - g[0].time_s < 2 * GATHER_S):
-            g.clear()  # another sensor, or a gap in the stream: start again
+                  or not 0.0 <= time_s - g[0].time_s < 2 * GATHER_S or g[0].surface is not surface):
+            g.clear()  # another sensor, a gap in the stream, another altitude: start again
         g.append(_Reading(time_s, north_m, east_m, bearings, half_width_rad,
                           np.atleast_1d(np.asarray(distances_m, float)), max_range_m, position_error_m,
-                          bearing_error_rad))
+                          bearing_error_rad, surface))
         if time_s - g[0].time_s < GATHER_S:
             return None
         self._gathered = []
         counts = [len(r.bearings_rad) for r in g]
-        return self._match(time_s, np.repeat([r.north_m for r in g], counts), np.repeat([r.east_m for r in g], counts),
+        return self._match(surface, time_s, np.repeat([r.north_m for r in g], counts),
+                           np.repeat([r.east_m for r in g], counts),
                            np.concatenate([r.bearings_rad for r in g]), half_width_rad,
                            np.concatenate([r.distances_m for r in g]), max_range_m,
                            max(r.position_error_m for r in g), max(r.bearing_error_rad for r in g))
 
-    def _match(self, time_s: float, north_m, east_m, bearings: np.ndarray, half_width_rad: float, distances_m,
-               max_range_m: float, position_error_m: float, bearing_error_rad: float) -> Match | None:
+    def _match(self, surface: MapSurface, time_s: float, north_m, east_m, bearings: np.ndarray,
+               half_width_rad: float, distances_m, max_range_m: float, position_error_m: float,
+               bearing_error_rad: float) -> Match | None:
         sigma = position_error_m / SIGMAS
         self._limit_m = position_error_m
         self.estimate.predict(time_s, sigma)
@@ -435,7 +458,7 @@ class PositionFix:
             search = 0.0
         else:
             self._searched_s = time_s
-        match = match_scan(self.surface, north_m, east_m, bearings, half_width_rad, distances_m, max_range_m,
+        match = match_scan(surface, north_m, east_m, bearings, half_width_rad, distances_m, max_range_m,
                            start_ne=self.estimate.correction, search_m=search,
                            turn_sigma_rad=math.hypot(HEADING_SIGMA_RAD, bearing_error_rad))
         if match is not None:

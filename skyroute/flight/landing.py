@@ -59,8 +59,10 @@ class LandingMixin:
         limit_s = (start - floor) / speed + 2.0 * self.settle_s
         # a vehicle told to come down starts to only after the link's round trip (autopilot seconds)
         stall_s = 1.0 + rate * float(getattr(self.vehicle, "round_trip_s", 0.0) or 0.0)
-        heading = self._heading_rad if math.isfinite(self._heading_rad) else \
-            float(getattr(self.vehicle.telemetry, "heading_rad", 0.0) or 0.0)
+        heading = self._heading_rad
+        if not math.isfinite(heading):  # no leg flown yet: the heading it has, north if it reports none
+            heading = float(getattr(self.vehicle.telemetry, "heading_rad", math.nan))
+            heading = heading if math.isfinite(heading) else 0.0
         self._near_goal_since = stalled_at = math.nan
         log.info("coming down over (%.1f N, %.1f E) to %.1f m before landing", north_m, east_m, floor)
         began = trim_at = self.clock()

@@ -75,7 +75,7 @@ class LandingMixin:
                 t = self.vehicle.telemetry
                 # heights as flown (the keep-off's lift is not sent: coming down is the point), the horizontal
                 # relative to the route as the keep-off shifted it
-                self._sense_coming_down(self._map_position())
+                self._sense_coming_down(self._map_position())  # may move the fix's correction: read p after
                 p = self._map_position()
                 q = self._unshifted(p)
                 off_m = math.hypot(q.north_m - north_m, q.east_m - east_m)

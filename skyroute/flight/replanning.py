@@ -383,10 +383,9 @@ class Sensing:
         sectors gathered by the fix over a few cycles), and how far off it may still be."""
         fix = self.fix
         t = float(getattr(r, "time_s", math.nan))
-        extra = {} if altitude_m is None else {"altitude_m": altitude_m}
         fix.observe(t if math.isfinite(t) else self.clock(), north_m, east_m, bearings, float(r.half_width_rad),
                     distances_m, max_range_m, position_error_m,
-                    bearing_error_rad=float(getattr(r, "bearing_error_rad", 0.0)), **extra)
+                    bearing_error_rad=float(getattr(r, "bearing_error_rad", 0.0)), altitude_m=altitude_m)
         cn, ce = fix.correction_ne
         bound = fix.bound_m
         now = self.clock()

@@ -237,7 +237,10 @@ def test_a_crosswind_that_takes_most_of_the_tilt_is_flown_slower_and_keeps_the_m
     # across the wind, the autopilot leaned at its limit and was carried 2 m off the route, 2.95 m from a building
     # (planned 5); flown within what the tilt leaves (skyroute.flight.tilt) it keeps >= 4.7 m (measured)
     watchdog(60.0)
-    sim = start_sim(speedup=5.0, scale_timeouts=False, params={"MPC_TILTMAX_AIR": 30.0}, wind_m_s=(15.0, 0.0))
+    # at speed-up 3: the client shares its worker with the test, and at 5 under a busy CI (a SITL on the other
+    # worker) it fell behind the 15 m/s wind once (3.85 m; 4.45-4.75 m with both cores otherwise busy, 4.72-4.75 m
+    # at 3)
+    sim = start_sim(speedup=3.0, scale_timeouts=False, params={"MPC_TILTMAX_AIR": 30.0}, wind_m_s=(15.0, 0.0))
     code = fly(sim, tmp_path)
     report = sim.stop()
     out, err = capsys.readouterr()
@@ -245,7 +248,7 @@ def test_a_crosswind_that_takes_most_of_the_tilt_is_flown_slower_and_keeps_the_m
     landed = report["landed"]
     error_m = distance_m(landed["lat_deg"], landed["lon_deg"], *to_latlon(*GOAL_NEAR))
     print(f"\ncrosswind: min clearance {report['min_clearance_m']:.2f} m, airborne {report['airborne_time_s']:.1f} s, "
-          f"landing error {error_m:.2f} m")
+          f"landing error {error_m:.2f} m {report.get('min_clearance_at')}")
     assert not report["collisions"] and report["min_clearance_m"] >= SAFETY_M - 1.0
     assert error_m < 1.0
     assert_down_and_disarmed(report)

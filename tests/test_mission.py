@@ -1388,25 +1388,62 @@ def test_a_mode_change_we_did_not_ask_for_is_taken_back_at_once(clock):
     assert (S.WAYPOINT, E.CONTROL_LOST, S.RECOVERING) in result.history
 
 
-def test_a_mode_change_during_the_descent_over_the_goal_is_taken_back_as_in_flight(clock):
+def _to_the_goal(n, e):
+    """straight_plan's route, to its goal from anywhere: (60, 40) at 10 m."""
+    corners = [(n, e), (60.0, e), (60.0, 40.0)]
+    kept = [c for k, c in enumerate(corners) if k == 0 or math.dist(c, corners[k - 1]) > 0.5]
+    return np.array([[a, b, 10.0, 0.0] for a, b in kept])
+
+
+def test_a_mode_change_during_the_descent_over_the_goal_is_taken_back_and_the_descent_goes_on(clock):
     v = FakeVehicle(clock, start=(-100.0, 50.0))
-    changed = []
+    changed, sent_before = [], []
 
-    def leave_offboard(dt):  # once, 3 m into the descent over the goal
+    def leave_offboard():
+        changed.append(-v.telemetry.down_m)
+        sent_before.append(len(v.gotos))
+        v.mode = "hold"
+
+    def watch(dt):  # once, 3 m into the descent over the goal
         if not changed and v.gotos and v.gotos[-1][2] > -7.0:
-            changed.append(clock.now)
-            v.mode = "hold"
+            leave_offboard()
 
-    def to_the_goal(n, e):  # straight_plan's route, to its goal from anywhere: (60, 40) at 10 m
-        corners = [(n, e), (60.0, e), (60.0, 40.0)]
-        kept = [c for k, c in enumerate(corners) if k == 0 or math.dist(c, corners[k - 1]) > 0.5]
-        return np.array([[a, b, 10.0, 0.0] for a, b in kept])
-
-    clock.tickers.append(leave_offboard)
-    result = make_mission(v, clock, to_the_goal).run()
+    clock.tickers.append(watch)
+    result = make_mission(v, clock, _to_the_goal).run()
     assert changed and result.completed and result.landing_error_m < 0.3
     assert (S.WAYPOINT, E.CONTROL_LOST, S.RECOVERING) in result.history  # taken back, not landed where it was
     assert v.calls.count("land") == 1
+    # it came on down from where it was: no climb back to the flight altitude (10 m) to fly the route's end again
+    assert max(-g[2] for g in v.gotos[sent_before[0]:]) < changed[0] + 0.3
+
+
+@pytest.mark.parametrize("failsafe_mode", ["hold", "LAND"])
+def test_an_outage_during_the_descent_over_the_goal_does_not_climb_back(clock, failsafe_mode):
+    """The link is silent for 3 s, 3 m into the descent; the autopilot's failsafe holds (PX4: Hold) or lands
+    (LAND) meanwhile. Held: control is taken back and the descent goes on from where the vehicle is. Landing over
+    the goal: that is the landing, not a mode to take back."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+    lost, sent_before = [], []
+
+    def watch(dt):
+        if not lost and v.gotos and v.gotos[-1][2] > -7.0:
+            lost.append(-v.telemetry.down_m)
+            sent_before.append(len(v.gotos))
+            v.link_ok, v.mode = False, failsafe_mode
+            clock.at(clock.now + 3.0, lambda: setattr(v, "link_ok", True))
+
+    clock.tickers.append(watch)
+    lines = []
+    result = make_mission(v, clock, _to_the_goal, progress=lines.append).run()
+    assert lost and result.completed and result.final_state is S.MANUAL and result.landing_error_m < 0.3
+    assert (S.WAYPOINT, E.LINK_LOST, S.RECOVERING) in result.history
+    assert max((-g[2] for g in v.gotos[sent_before[0]:]), default=-math.inf) < lost[0] + 0.3
+    assert sum("the autopilot's failsafe has the vehicle" in line for line in lines) == 1
+    if failsafe_mode == "LAND":
+        assert "take_control" not in v.calls[v.calls.index("takeoff"):]
+        assert any("landing over the goal by itself; that is the landing" in line for line in lines)
+    else:
+        assert v.calls.count("take_control") == 1
 
 
 def test_the_autopilots_own_landing_during_the_descent_over_the_goal_is_the_landing(clock, caplog):

@@ -325,10 +325,14 @@ class ExplorationMission(Mission):
         try:
             while True:
                 try:
-                    self._follow(self._leg)
+                    if self._descent_point is not None:
+                        self._finish_descent()
+                    else:
+                        self._follow(self._leg)
                     return
                 except _Resumed:
-                    self._leg = self._resume_path(self._leg)
+                    if not self._descent_resumable():
+                        self._leg = self._resume_path(self._leg)
         finally:
             self._leg_kind = ""
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from .errors import LinkLostInFlight, MissionError, VehicleDisarmedInFlight
 from .path import path_length_m
-from .recovery import _Abort
+from .recovery import _Abort, _Resumed
 from .states import MissionEvent as E
 from .states import MissionState as S
 
@@ -66,7 +66,8 @@ class LandingMixin:
         self._near_goal_since = stalled_at = math.nan
         log.info("coming down over (%.1f N, %.1f E) to %.1f m before landing", north_m, east_m, floor)
         began = trim_at = self.clock()
-        self._coming_down = True
+        self._coming_down, self._descent_point = True, (north_m, east_m)
+        interrupted = False
         try:
             while True:
                 now = self.clock()
@@ -101,8 +102,36 @@ class LandingMixin:
                 target = self._to_local(*position)
                 self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading)
                 self._tick()
+        except _Resumed:
+            interrupted = True  # control taken back on the way down: :meth:`_resume_descent` goes on from there
+            raise
         finally:
             self._coming_down = False
+            if not interrupted:
+                self._descent_point = None
+
+    def _descent_resumable(self) -> bool:
+        """After control was taken back (a lost link or mode, :class:`~.recovery._Resumed`): whether a descent over
+        the goal was interrupted and the vehicle is still within ``resume_off_path_m`` of its point, so that
+        :meth:`_finish_descent` comes on down from where it is. Otherwise the interrupted descent is forgotten and
+        the path is flown again (:meth:`~.recovery.RecoveryMixin._resume_path`), which from below the flight
+        altitude climbs back to it before coming down once more."""
+        point = self._descent_point
+        if point is None:
+            return False
+        q = self._unshifted(self._map_position())
+        off_m = math.hypot(q.north_m - point[0], q.east_m - point[1])
+        if off_m > self.resume_off_path_m:
+            log.info("%.1f m off the landing point after control was taken back: flying the path again", off_m)
+            self._descent_point = None
+            return False
+        log.info("coming on down over the landing point from %.1f m (%.1f m off it)", q.altitude_m, off_m)
+        return True
+
+    def _finish_descent(self) -> None:
+        """Come on down over the interrupted descent's point (:meth:`_descent_resumable`); the goal is reached."""
+        self._come_down(*self._descent_point)
+        self._fire(E.GOAL_REACHED)
 
     def _landing_over_goal(self) -> bool:
         """The autopilot switched to its own landing (a failsafe's: a low battery, a lost link) while we were

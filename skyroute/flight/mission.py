@@ -237,6 +237,7 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         self._trim_m = np.zeros(2)
         self.altitude_tolerance_m, self.corner_cut_m = altitude_tolerance_m, corner_cut_m
         self.handover_m, self._heading_rad, self._coming_down = handover_m, math.nan, False
+        self._descent_point: tuple[float, float] | None = None  # the descent over the goal control was lost on
         self.speeds = preflight.Speeds(cruise_mps, accel_mps2, lateral_accel_mps2, vertical_mps)
         self.lead_s, self.velocity_lag_s, self.brake_lag_s = lead_s, velocity_lag_s, 0.0
         self.drag, self._drag_at, self._drag_told = DragEstimate(), math.nan, False
@@ -719,10 +720,14 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                 path = self._resume_path(waypoints)
             while True:
                 try:
-                    self._follow(path)
+                    if self._descent_point is not None:
+                        self._finish_descent()
+                    else:
+                        self._follow(path)
                     break
                 except _Resumed:
-                    path = self._resume_path(path)
+                    if not self._descent_resumable():
+                        path = self._resume_path(path)
                 except _Blocked as blocked:
                     path = self._replan_in_flight(blocked.blockage)
                 except _Rerouted as better:

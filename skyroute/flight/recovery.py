@@ -45,7 +45,8 @@ class RecoveryMixin:
             self._wait_for_link("the link was lost while landing")
             return
         if self.state in (S.TAKEOFF, S.WAYPOINT, S.REPLANNING):
-            self._recover("the link was lost", link_lost=True)
+            self._recover("the link was lost", link_lost=True)  # raises _Resumed unless landing over the goal
+            return
         self._wait_for_link(f"the link was lost in state {self.state.name}")
 
     def _wait_for_link(self, why: str) -> None:
@@ -71,7 +72,9 @@ class RecoveryMixin:
             self.sleep(self.poll_s)
 
     def _recover(self, why: str, *, link_lost: bool, retake: bool = False) -> None:
-        """RECOVERING: wait for the link, read the vehicle's real state, take control back; raises _Resumed."""
+        """RECOVERING: wait for the link, read the vehicle's real state, take control back; raises _Resumed. A
+        landing the autopilot began over the goal while the link was down (coming down there, a failsafe's LAND)
+        is the landing: back to WAYPOINT without taking control, the descent's loop hands over to it."""
         self._fire(E.LINK_LOST if link_lost else E.CONTROL_LOST)
         self.result.recoveries += 1
         log.warning("%s in flight; recovering", why)
@@ -88,6 +91,10 @@ class RecoveryMixin:
                 raise LandedMeanwhile(f"{why}; meanwhile the vehicle landed and disarmed at map ({p.north_m:.1f} N, "
                                       f"{p.east_m:.1f} E): not taking off again on our own")
             self._check_armed(why)
+        if self._landing_over_goal():  # its failsafe landed it where we were bringing it down: the landing
+            self._fire(E.RESUMED)
+            self._say(f"{why}: meanwhile the autopilot began landing over the goal by itself; that is the landing")
+            return
         kind = getattr(self.vehicle.mode_kind(), "value", "other")
         if kind != "ours":
             self._hand_over_unless_ours(kind, link_lost)
@@ -114,7 +121,9 @@ class RecoveryMixin:
         while getattr(vehicle.telemetry, "local_rx_s", math.inf) < back_s and self.clock() < deadline:
             self.sleep(0.02)
         p = self._map_position()
-        target = self._to_local(p.north_m, p.east_m, max(p.altitude_m, self.altitude_m))
+        # at the flight altitude, or where it is on the way down over the goal (the descent goes on from there)
+        altitude_m = p.altitude_m if self._coming_down else max(p.altitude_m, self.altitude_m)
+        target = self._to_local(p.north_m, p.east_m, altitude_m)
         heading = float(getattr(vehicle.telemetry, "heading_rad", 0.0) or 0.0)
         try:
             vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading, velocity_ned=None)

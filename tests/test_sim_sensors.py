@@ -16,37 +16,23 @@ from sim.world import CityMap
 from .conftest import SIM_LAT0, SIM_LON0, wait_sim
 
 
-def _ray_box(origin, bearing, lo, hi) -> float:
-    """Entry distance of a ray into a rectangle, by intersecting the four edges as segments (inf if none)."""
-    o = np.asarray(origin, float)
-    d = np.array([math.cos(bearing), math.sin(bearing)])
-    if lo[0] <= o[0] <= hi[0] and lo[1] <= o[1] <= hi[1]:
-        return 0.0
-    best = math.inf
-    corners = [(lo[0], lo[1]), (lo[0], hi[1]), (hi[0], hi[1]), (hi[0], lo[1])]
-    for a, b in zip(corners, corners[1:] + corners[:1]):
-        a, b = np.array(a), np.array(b)
-        e = b - a
-        den = d[0] * (-e[1]) - d[1] * (-e[0])
-        if abs(den) < 1e-15:
-            continue
-        rhs = a - o
-        t = (rhs[0] * (-e[1]) - rhs[1] * (-e[0])) / den
-        u = (d[0] * rhs[1] - d[1] * rhs[0]) / den
-        if t >= 0 and -1e-12 <= u <= 1 + 1e-12:
-            best = min(best, t)
-    return best
+def _ray_entry(origin, bearings, lo, hi) -> np.ndarray:
+    """Entry distance (m) of each ray into each rectangle by the slab method, shape (rays, boxes); inf if none."""
+    d = np.stack([np.cos(bearings), np.sin(bearings)], axis=1)[:, None, :]  # (rays, 1, 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lo[None] - np.asarray(origin, float)) / d
+        t2 = (hi[None] - np.asarray(origin, float)) / d
+    near = np.nan_to_num(np.minimum(t1, t2), nan=-np.inf).max(axis=2)  # nan: a ray along a slab's edge line
+    far = np.nan_to_num(np.maximum(t1, t2), nan=np.inf).min(axis=2)
+    return np.where((near <= far) & (far >= 0), np.maximum(near, 0.0), np.inf)
 
 
 def _brute_force(lo, hi, origin, sectors, first_centre, range_m, rays=400):
     """Minimum over a dense fan of rays in each sector (an upper bound of the exact minimum, converging to it)."""
     width = 2 * math.pi / sectors
-    out = np.full(sectors, np.inf)
-    for i in range(sectors):
-        c = first_centre + i * width
-        for bearing in np.linspace(c - width / 2, c + width / 2, rays):
-            for b in range(len(lo)):
-                out[i] = min(out[i], _ray_box(origin, bearing, lo[b], hi[b]))
+    centres = first_centre + width * np.arange(sectors)
+    bearings = (centres[:, None] + np.linspace(-width / 2, width / 2, rays)[None]).ravel()
+    out = _ray_entry(origin, bearings, lo, hi).min(axis=1, initial=np.inf).reshape(sectors, rays).min(axis=1)
     out[out > range_m] = np.inf
     return out
 

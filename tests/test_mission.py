@@ -1142,6 +1142,16 @@ def test_a_permanent_refusal_of_a_ready_vehicle_fails_at_once(clock):
     assert err.value.attempts == 1 and clock.now < 1.0
 
 
+def test_a_refused_flight_mode_is_named_as_such_not_as_a_refusal_to_arm(clock):
+    # PX4 arms in OFFBOARD: a DO_SET_MODE DENIED comes before any arm request
+    v = FakeVehicle(clock)
+    v.fail_on["prepare_flight!"] = Refused("MAV_CMD_DO_SET_MODE rejected: MAV_RESULT_DENIED", permanent=True)
+    with pytest.raises(m.ArmingFailed, match="^the autopilot refused to take the flight mode we arm in and says it "
+                                             "is ready, so waiting will not help") as err:
+        make_mission(v, clock, straight_plan([]), arm_timeout_s=60.0).run()
+    assert err.value.action != "arm" and "arm" not in v.calls and not v.telemetry.armed
+
+
 def test_a_permanent_refusal_of_a_vehicle_not_ready_yet_is_retried(clock):
     # ArduCopter answers FAILED ("PreArm: ...") until its EKF is happy, and says it is not ready meanwhile (its
     # pre-arm flag may drop after the mission found it ready, e.g. the EKF re-converging)

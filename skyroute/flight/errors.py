@@ -24,12 +24,13 @@ class NotReady(MissionError):
 
 
 class ArmingFailed(MissionError):
-    """The autopilot refused to arm: for good (a DENIED/FAILED answer while it says it is ready), or until the
-    timeout. ``reason`` is its latest answer."""
+    """The autopilot refused to arm, or to take the flight mode we arm in (``action``): for good (a DENIED/FAILED
+    answer while it says it is ready), or until the timeout. ``reason`` is its latest answer."""
 
-    def __init__(self, why: str, attempts: int, reason: str):
-        self.attempts, self.reason = attempts, reason
-        super().__init__(f"the autopilot refused to arm {why} ({attempts} attempt{'s' * (attempts != 1)}): {reason}")
+    def __init__(self, why: str, attempts: int, reason: str, action: str = "arm"):
+        self.attempts, self.reason, self.action = attempts, reason, action
+        super().__init__(f"the autopilot refused to {action} {why} ({attempts} attempt{'s' * (attempts != 1)}): "
+                         f"{reason}")
 
 
 class NoPathFound(MissionError):

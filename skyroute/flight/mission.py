@@ -669,7 +669,9 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
         while True:
             attempts += 1
             try:
+                action = "take the flight mode we arm in"
                 self.vehicle.prepare_flight()
+                action = "arm"
                 self.vehicle.arm()
                 break
             except self.vehicle_errors as exc:
@@ -679,11 +681,13 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                 ready = self.vehicle.readiness().ready
                 if getattr(exc, "permanent", False) and ready:
                     self._arm_failed()
-                    raise ArmingFailed("and says it is ready, so waiting will not help", attempts, str(exc)) from exc
+                    raise ArmingFailed("and says it is ready, so waiting will not help", attempts, str(exc),
+                                       action) from exc
                 if self.clock() >= self._arm_deadline_s:
                     self._arm_failed()
-                    raise ArmingFailed(f"for {self.arm_timeout_s:g} s", attempts, str(exc)) from exc
-                self._say(f"arming refused ({exc}); retrying", every=True)
+                    raise ArmingFailed(f"for {self.arm_timeout_s:g} s", attempts, str(exc), action) from exc
+                self._say(f"{'arming' if action == 'arm' else 'the flight mode'} refused ({exc}); retrying",
+                          every=True)
                 self.sleep(min(self.arm_retry_s, max(self._arm_deadline_s - self.clock(), 0.0)))
         self._fire(E.ARMED)
         if hasattr(self.vehicle, "map_offset_now"):  # a frame that moved at arming (a new origin) before takeoff

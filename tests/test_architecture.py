@@ -6,6 +6,7 @@ Each rule names who may import what; a test fails with the offending file, line 
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -20,6 +21,7 @@ def _module_name(path: Path, root: Path = ROOT) -> str:
     return ".".join(parts)
 
 
+@functools.cache  # every rule reads the same files: parse each once per run
 def _imports(path: Path, root: Path = ROOT) -> list[tuple[int, str]]:
     """``(line, absolute module name)`` of every import in the file, including those inside functions."""
     module = _module_name(path, root)
@@ -42,9 +44,13 @@ def _within(name: str, prefixes: tuple[str, ...]) -> bool:
     return any(name == x or name.startswith(x + ".") for x in prefixes)
 
 
+@functools.cache
+def _python_files(root: Path) -> tuple[Path, ...]:
+    return tuple(p for p in root.rglob("*.py") if not {".venv", "build"} & set(p.relative_to(root).parts))
+
+
 def _sources(*prefixes: str, root: Path = ROOT) -> list[Path]:
-    files = [p for p in root.rglob("*.py") if not {".venv", "build"} & set(p.relative_to(root).parts)]
-    return sorted(p for p in files if _within(_module_name(p, root), prefixes))
+    return sorted(p for p in _python_files(root) if _within(_module_name(p, root), prefixes))
 
 
 def _violations(importers: list[Path], forbidden: tuple[str, ...], root: Path = ROOT) -> list[str]:

@@ -21,6 +21,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from skyroute import vehicle as vh
+from skyroute.vehicle import limits
 from skyroute.vehicle.telemetry import local_scale
 
 
@@ -456,12 +457,22 @@ def test_command_timeout_after_bounded_retries(fake, connect):
 
 
 # --------------------------------------------------------------------------------------------- parameters
+def px4_params(**given):
+    """Every parameter :func:`flight_limits` reads from PX4, at its default (as PX4 has them all: none is waited
+    for), with ``given`` {name: (value, MAV_PARAM_TYPE)} instead where named. Integers for the actions."""
+    real = {"COM_OF_LOSS_T", "MPC_XY_VEL_MAX", "MPC_ACC_HOR", "MPC_XY_P", "MPC_TILTMAX_AIR", "GF_MAX_HOR_DIST",
+            "GF_MAX_VER_DIST", "RTL_RETURN_ALT"}
+    out = {name: (limits.DEFAULTS[name], mavlink.MAV_PARAM_TYPE_REAL32) if name in real
+           else (int(limits.DEFAULTS[name]), mavlink.MAV_PARAM_TYPE_INT32) for name in limits.PX4_PARAMETERS}
+    return {**out, **given}
+
+
 def test_parameters_are_read_with_px4s_integer_encoding(fake, connect):
-    ap = fake(params={"COM_OF_LOSS_T": (1.0, mavlink.MAV_PARAM_TYPE_REAL32),
-                      "NAV_DLL_ACT": (3, mavlink.MAV_PARAM_TYPE_INT32),
-                      "COM_OBL_RC_ACT": (4, mavlink.MAV_PARAM_TYPE_INT32)})
+    ap = fake(params=px4_params(COM_OF_LOSS_T=(1.0, mavlink.MAV_PARAM_TYPE_REAL32),
+                                NAV_DLL_ACT=(3, mavlink.MAV_PARAM_TYPE_INT32),
+                                COM_OBL_RC_ACT=(4, mavlink.MAV_PARAM_TYPE_INT32)))
     v = connect(ap.port)
-    assert v.read_params(["COM_OF_LOSS_T", "NAV_DLL_ACT", "COM_OBL_RC_ACT", "NO_SUCH_PARAM"]) == {
+    assert v.read_params(["COM_OF_LOSS_T", "NAV_DLL_ACT", "COM_OBL_RC_ACT", "NO_SUCH_PARAM"], timeout_s=0.5) == {
         "COM_OF_LOSS_T": 1.0, "NAV_DLL_ACT": 3.0, "COM_OBL_RC_ACT": 4.0}
     limits = v.flight_limits()
     assert not limits.leaves_flying and "Land" in limits.link_loss  # COM_OBL_RC_ACT = 4 lands
@@ -499,7 +510,7 @@ def test_a_silence_shorter_than_a_lost_link_explains_a_failsafe_mode_change(fake
 
 
 def test_a_silence_shorter_than_the_autopilots_own_failsafe_timeout_explains_nothing(fake, connect):
-    ap = fake(params={"COM_OF_LOSS_T": (3.0, mavlink.MAV_PARAM_TYPE_REAL32)})  # PX4 waits 3 s for setpoints
+    ap = fake(params=px4_params(COM_OF_LOSS_T=(3.0, mavlink.MAV_PARAM_TYPE_REAL32)))  # PX4 waits 3 s for setpoints
     v = connect(ap.port, link_floor_s=5.0)
     v.flight_limits()
     ap.send_heartbeat = ap.send_positions = False

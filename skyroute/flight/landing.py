@@ -103,7 +103,7 @@ class LandingMixin:
                 self.vehicle.goto_local(target.north_m, target.east_m, target.down_m, heading)
                 self._tick()
         except _Resumed:
-            interrupted = True  # control taken back on the way down: :meth:`_resume_descent` goes on from there
+            interrupted = True  # control taken back on the way down: :meth:`_finish_descent` goes on from there
             raise
         finally:
             self._coming_down = False

@@ -64,6 +64,9 @@ class ScriptedExplorer:
     def coverage(self):
         return 0.5
 
+    def why_unreachable(self, position_ne):
+        return ""
+
     def discovered_ne(self):
         return np.empty((0, 2))
 

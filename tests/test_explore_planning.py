@@ -140,3 +140,25 @@ def test_explorer_routes_round_an_observed_wall():
             n, e = a + t * (b - a)
             dn, de = max(-30.0 - n, 0.0, n - 31.0), max(10.0 - e, 0.0, e - 11.0)
             assert math.hypot(dn, de) >= 2.0 - 1e-6
+
+
+def test_why_nothing_is_reachable_counts_the_goals_left_and_names_a_start_inside_a_margin():
+    area = ExploreArea(np.empty((0, 6)), (0.0, 0.0), 20.0, 5.0, 2.0, confirm_hits=1, camera_radius_m=4.0)
+    explorer = Explorer(area)
+    assert explorer.why_unreachable((0.0, 0.0)) == ""  # nothing known yet: no goal at all
+    ring = [(n, e) for n in np.arange(-6.0, 7.0) for e in np.arange(-6.0, 7.0) if max(abs(n), abs(e)) == 6.0]
+    for n, e in ring:  # a closed ring of observed cells 6 m round the vehicle: every goal outside it
+        area.live.hits[area.cell_of(n, e)] = True
+    area.live._reinflate(np.argwhere(area.live.hits))
+    area.live.known[area.cell_of(-4.0, -4.0)[0]:area.cell_of(4.0, 4.0)[0] + 1,
+                    area.cell_of(-4.0, -4.0)[1]:area.cell_of(4.0, 4.0)[1] + 1] = True
+    for n in (-3.0, 0.0, 3.0):
+        for e in (-3.0, 0.0, 3.0):
+            area.view(n, e)  # the camera has looked at everything inside the ring
+    area.live.known[area.cell_of(12.0, -2.0)[0]:area.cell_of(14.0, 2.0)[0] + 1,
+                    area.cell_of(12.0, -2.0)[1]:area.cell_of(14.0, 2.0)[1] + 1] = True  # seen free beyond it
+    assert explorer.next_frontier((0.0, 0.0)) is None
+    why = explorer.why_unreachable((0.0, 0.0))
+    assert why.startswith(f"{int(area.goals().sum())} frontier and search cells, none reachable from (0.0 N, 0.0 E)")
+    assert int(area.goals().sum()) > 0 and "margin" not in why
+    assert explorer.why_unreachable((5.0, 0.0)).endswith("; that cell is inside an obstacle margin")

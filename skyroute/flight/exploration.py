@@ -69,6 +69,8 @@ class Explorer(Protocol):
 
     def coverage(self) -> float: ...
 
+    def why_unreachable(self, position_ne: Sequence[float]) -> str: ...
+
     def discovered_ne(self) -> np.ndarray: ...
 
 
@@ -350,6 +352,8 @@ class ExplorationMission(Mission):
             frontier = self.explorer.next_frontier(here)
             if frontier is None:
                 self.stats.stopped = "no reachable frontier left"
+                if why := self.explorer.why_unreachable(here):
+                    log.info("exploration stops with goals left: %s", why)
                 return
             point = tuple(frontier.point_ne)
             key = (round(point[0]), round(point[1]))

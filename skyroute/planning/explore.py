@@ -373,3 +373,16 @@ class Explorer:
 
     def coverage(self) -> float:
         return self.area.coverage()
+
+    def why_unreachable(self, position_ne: Sequence[float]) -> str:
+        """When :meth:`next_frontier` found nothing: how many goal cells are left out of reach of the map point, and
+        whether its own cell is inside an observed obstacle's margin; "" when none is left."""
+        area = self.area
+        left = int(area.goals().sum())
+        if left == 0:
+            return ""
+        i, j = area.cell_of(*position_ne)
+        grid = area.live.grid
+        inside = 0 <= i < grid.shape[0] and 0 <= j < grid.shape[1] and bool(grid[i, j])
+        return (f"{left} frontier and search cells, none reachable from ({position_ne[0]:.1f} N, "
+                f"{position_ne[1]:.1f} E){'; that cell is inside an obstacle margin' if inside else ''}")

@@ -162,3 +162,21 @@ def test_why_nothing_is_reachable_counts_the_goals_left_and_names_a_start_inside
     assert why.startswith(f"{int(area.goals().sum())} frontier and search cells, none reachable from (0.0 N, 0.0 E)")
     assert int(area.goals().sum()) > 0 and "margin" not in why
     assert explorer.why_unreachable((5.0, 0.0)).endswith("; that cell is inside an obstacle margin")
+
+
+def test_a_vehicle_deep_inside_a_margin_still_finds_the_frontier_beyond_it():
+    # a wall seen late: the vehicle stands 1 m from it, two cells deep in its 3 m margin, where every neighbour is
+    # blocked too; the frontier is searched from where the vehicle joins the free space, that leg in its cost
+    area = ExploreArea(np.empty((0, 6)), (0.0, 0.0), 25.0, 5.0, 3.0, confirm_hits=1)
+    for north in np.arange(-20.0, 21.0, 1.0):
+        area.live.hits[area.cell_of(north, 10.0)] = True
+    area.live._reinflate(np.argwhere(area.live.hits))
+    area.live.known[area.cell_of(-5.0, 0.0)[0]:area.cell_of(5.0, 0.0)[0] + 1,
+                    area.cell_of(0.0, -5.0)[1]:area.cell_of(0.0, 9.0)[1] + 1] = True
+    here = (0.5, 8.5)
+    i, j = area.cell_of(*here)
+    assert area.live.grid[i - 1:i + 2, j - 1:j + 2].all()  # boxed in by its own margin
+    found = Explorer(area).next_frontier(here)
+    assert found is not None
+    assert found.point_ne[1] <= 10.0 - 3.0  # on the vehicle's side of the wall, outside the margin
+    assert found.cost_m >= math.dist(here, (here[0], 10.0 - 3.0)) - 1.0

@@ -163,13 +163,23 @@ class ExploreArea:
         return int(self.abandoned[i0:i1, j0:j1].sum()) - before
 
     def nearest_frontier(self, position_ne: Sequence[float], min_m: float = 3.0) -> Frontier | None:
-        """The cheapest reachable frontier from the vehicle (see :func:`nearest_frontier`)."""
+        """The cheapest reachable frontier from the vehicle (see :func:`nearest_frontier`).
+
+        A vehicle inside a margin (a wall seen late, or seen again nearer) is searched from where it joins the free
+        space (:meth:`LiveMap.way_out`, as the routes to a frontier start), the straight leg there added to the cost:
+        from the blocked cell itself every neighbour is blocked too, and nothing would be reachable."""
         mask = self.goals()
-        found = nearest_frontier(self.live.grid, mask, self.cell_of(*position_ne), min_m)
+        start, lead = self.cell_of(*position_ne), 0.0
+        n, m = self.live.shape
+        if 0 <= start[0] < n and 0 <= start[1] < m and self.live.grid[start]:
+            out = self.live.way_out(start)
+            if out is not None:
+                start, lead = out, math.dist(start, out)
+        found = nearest_frontier(self.live.grid, mask, start, max(min_m - lead, 0.0))
         if found is None:
             return None
         cell, cost = found
-        return Frontier(cell, self.centre_of(cell), cost, int(mask.sum()))
+        return Frontier(cell, self.centre_of(cell), cost + lead, int(mask.sum()))
 
     def occupied_boxes(self, height_m: float) -> np.ndarray:
         """Observed obstacle cells as merged ``colliders.csv`` boxes ``(K, 6)`` of ``height_m`` (m)."""

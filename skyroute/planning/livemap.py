@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyroute.planning import kernels
+from skyroute.planning.cspace import nearest_free_cell, snap_start_cell
 
 _TWO_PI = 2.0 * math.pi
 #: Sectors this narrow (half width, rad) or narrower place an oblique reading's hit at the edge towards the
@@ -222,6 +223,13 @@ class LiveMap:
 
     def cell_of(self, north_m: float, east_m: float) -> tuple[int, int]:
         return int(math.floor(north_m - self.north_offset)), int(math.floor(east_m - self.east_offset))
+
+    def way_out(self, cell: tuple[int, int]) -> tuple[int, int] | None:
+        """Where a vehicle in ``cell`` (inside a margin on :attr:`grid`) joins the free space: the nearest free cell
+        whose straight leg crosses no observed obstacle or map building (the nearest free cell when none such);
+        None when no cell is free."""
+        solid = self.hits if self.footprint is None else self.hits | self.footprint
+        return snap_start_cell(self.grid, solid, cell) or nearest_free_cell(self.grid, cell)
 
     def hit_cells_ne(self) -> np.ndarray:
         """Map ``(north_m, east_m)`` of every observed obstacle cell's centre, ``(K, 2)``."""

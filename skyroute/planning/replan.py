@@ -36,7 +36,6 @@ import numpy as np
 from scipy import ndimage
 
 from skyroute.planning import any_angle
-from skyroute.planning.cspace import nearest_free_cell, snap_start_cell
 from skyroute.planning.errors import NoPathError, PlanningError
 from skyroute.planning.livemap import LiveMap
 from skyroute.planning.pruning import headings_along, line_of_sight, path_length, prune_path
@@ -309,10 +308,7 @@ class Replanner:
         if not (0 <= cell[0] < n and 0 <= cell[1] < m) or not live.grid[cell]:
             return cell, False
         # Inside the margin: lead out to the nearest free cell seen by a straight leg that crosses no obstacle.
-        solid = live.hits | (live.footprint if live.footprint is not None else np.zeros_like(live.hits))
-        snapped = snap_start_cell(live.grid, solid, cell)
-        if snapped is None:
-            snapped = nearest_free_cell(live.grid, cell)
+        snapped = live.way_out(cell)
         return (cell, False) if snapped is None else (snapped, True)
 
     def replan(self, position_ne: Sequence[float]) -> Replan:

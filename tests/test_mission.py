@@ -1226,6 +1226,33 @@ def test_failure_mid_flight_holds_when_landing_fails(clock):
     assert err.value.result.final_state is S.FAILED
 
 
+def test_a_failsafe_that_refuses_land_and_hold_is_followed_down_and_where_it_landed_is_said(clock):
+    """PX4 SITL without a position estimate (its GPS switched off mid-route): the failsafe puts it in ALTCTL and
+    lands it blind, refusing OFFBOARD, LAND and HOLD alike ("currently not available"). The mission cannot land or
+    hold it: it watches the autopilot bring it down and says where it came down, not only that it let go."""
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def position_lost():
+        v.mode, v.hint = "posctl", "the autopilot said 'Failsafe activated'"
+        for name in ("take_control!", "land!", "hold!"):
+            v.fail_on[name] = Refused("DO_SET_MODE rejected: TEMPORARILY_REJECTED")
+
+    def blind_land(dt):
+        t = v.telemetry
+        if v.mode == "posctl" and t.armed:
+            t.down_m = min(0.0, t.down_m + 0.7 * dt)
+            t.on_ground = t.down_m >= 0.0
+            t.armed = not t.on_ground
+
+    clock.tickers.append(blind_land)
+    clock.at(8.0, position_lost)
+    with pytest.raises(m.FlightAborted, match=r"nor hold .*failsafe owns the vehicle; it landed at map "
+                                              r"\(-?\d+\.\d N, -?\d+\.\d E\) and disarmed") as err:
+        make_mission(v, clock, straight_plan([]), control_retries=3).run()
+    assert v.telemetry.on_ground and not v.telemetry.armed
+    assert err.value.result.final_state is S.FAILED
+
+
 def test_takeoff_timeout_lands(clock):
     v = FakeVehicle(clock, climbs=False)
     with pytest.raises(m.FlightAborted, match="takeoff did not reach"):

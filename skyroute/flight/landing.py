@@ -206,8 +206,12 @@ class LandingMixin:
                 try:
                     self.vehicle.hold()
                 except self.vehicle_errors as hold_exc:
-                    return (f"could not land ({exc}) nor hold ({hold_exc}); "
+                    # Refused both: the autopilot's failsafe flies it (PX4 without a position lands blind in
+                    # ALTCTL and refuses every mode that needs one). Watch it down, so we can say how it ended.
+                    said = (f"could not land ({exc}) nor hold ({hold_exc}); "
                             "the autopilot's failsafe owns the vehicle")
+                    self._say(f"{said}: following it down")
+                    return f"{said}; {self._follow_down()}"
                 return f"could not land ({exc}); holding position"
         try:
             self._await_touchdown()

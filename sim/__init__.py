@@ -78,7 +78,9 @@ Per TCP client, in simulated time (:mod:`sim.faults`): packet loss in each direc
 milliseconds each way, an outage from T for D simulated seconds; so a run at ``--speedup 5`` meets the same link
 as one at ``--speedup 1``. ``--deny-arm N`` and ``--deny-command NAME`` inject refusals; ``--battery-low T``
 makes the battery read low from T simulated seconds on (its failsafe acts as COM_LOW_BAT_ACT / BATT_FS_LOW_ACT
-say; PX4 only warns at that level; :mod:`sim.failsafes`).
+say; PX4 only warns at that level; :mod:`sim.failsafes`); ``--gps-loss T[,D]`` takes the GPS's fix away from T
+(for D seconds, or for good): the estimate dead-reckons, and after the estimator's timeout PX4 lands blind in
+Altitude mode refusing the modes that need a position, ArduCopter takes its EKF failsafe's LAND.
 
 ``signing_key`` / ``--signing-key KEY`` (:mod:`sim.signing`): 64 hex characters are the 32-byte key, other text
 a passphrase whose SHA-256 is the key (MAVProxy's rule). The sim then signs what it sends (pymavlink's signing)

@@ -190,6 +190,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the battery reads low T simulated seconds after start; the low-battery failsafe acts as "
                         "its parameter says (ardupilot BATT_FS_LOW_ACT, default 0: warn only; px4 warns, as at "
                         "its low level)")
+    g.add_argument("--gps-loss", type=_numbers((1, 2), "T[,D]"), default=None, metavar="T[,D]",
+                   help="the GPS has no fix from T simulated seconds after start (for D seconds; default: for good); "
+                        "the estimate dead-reckons, and after the estimator's timeout the position-loss failsafe "
+                        "acts (px4: Failsafe, blind descent in Altitude mode; ardupilot: EKF failsafe, LAND)")
     return p
 
 
@@ -209,6 +213,8 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         deny_arm_count=args.deny_arm,
         deny_commands=tuple(args.deny_command),
         battery_low_s=args.battery_low,
+        gps_loss_start_s=None if args.gps_loss is None else args.gps_loss[0],
+        gps_loss_duration_s=math.inf if args.gps_loss is None or len(args.gps_loss) < 2 else args.gps_loss[1],
     )
     return SimConfig(
         map_path=args.map, host=args.host, port=args.port, speedup=args.speedup, start=args.start,

@@ -37,7 +37,7 @@ PREARM_REPORT_PERIOD_S = 30.0
 def readiness_reason(ap) -> str:
     """Why the vehicle is not ready to arm, in the autopilot's words; "" when it is."""
     t = ap.sim_time_s
-    if t >= ap.boot.armable_s and ap.home_neu is not None:
+    if t >= ap.boot.armable_s and ap.home_neu is not None and ap.gps_lost_since is None:
         return ""
     if ap.is_px4:
         return PX4_ARMING_DENIED

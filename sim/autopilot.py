@@ -21,6 +21,7 @@ from collections.abc import Callable
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from . import streams
 from . import telemetry as tm
 from .arming import GroundLogic, arm_refusal, readiness_reason
 from .boot import resolve_boot
@@ -45,6 +46,14 @@ NAN = math.nan
 #: ``--gps-noise``: the estimator smooths the drift (``--gps-correlation``) over this long (s): a real EKF's
 #: position does not jump between its updates.
 GPS_SMOOTHING_S = 2.0
+#: ``--gps-loss``: without GPS the estimate dead-reckons on the IMU and its horizontal error grows, here at this
+#: rate (m/s) in one direction drawn when the GPS goes (a model, not a measurement: an error growing with time).
+DEAD_RECKONING_DRIFT_M_S = 0.3
+#: ... until the estimator gives its horizontal position up and the position-loss failsafe acts: this long after
+#: the GPS went (simulated s), measured: PX4 1.15 SIH with GPS fusion switched off in OFFBOARD flight, "Failsafe
+#: activated" 6.5 s after (EKF2_NOAID_TOUT 5 s, then the failsafe's own hold-off); ArduCopter 4.7 SITL with
+#: SIM_GPS1_ENABLE 0, "EKF variance" and "EKF Failsafe" 7.3 s after.
+POSITION_LOSS_AFTER_S = {"px4": 6.5, "ardupilot": 7.3}
 #: PX4 modes that prevent arming: the mode PX4 returns to after a disarm is never one of them.
 _PX4_PREVENTS_ARMING = {"LAND", "RTL"}
 
@@ -105,6 +114,9 @@ class Autopilot(CommandHandlers, TaskControl):
         self.speed_limit_m_s = NAN
         self.gps_noise = np.zeros(3)  # the estimate's error (m, map frame; height stays 0)
         self.gps_drift = np.zeros(2)  # the drift behind it, before the estimator's smoothing
+        self.dead_reckoning = np.zeros(3)  # the estimate's error grown since the GPS went (--gps-loss; m, map frame)
+        self._dead_reckoning_rate = np.zeros(3)
+        self.gps_lost_since: float | None = None  # simulated s the GPS went (None: it has a fix)
         self.gust = np.zeros(3)
         self.ground = GroundLogic(self)
         self.failsafes = Failsafes(self)
@@ -130,10 +142,33 @@ class Autopilot(CommandHandlers, TaskControl):
         barometer, as PX4's (EKF2_HGT_REF) and ArduPilot's (EK3_SRC1_POSZ) estimators take it by default, so the
         GPS's vertical error shows in neither the altitude held nor the altitude reported (GPS_RAW_INT states it
         as ``v_acc``)."""
-        error = np.zeros(3)
+        error = self.dead_reckoning.copy()
         if self.cfg.gps_noise_m > 0:
-            error[:2] = self.gps_noise[:2]
+            error[:2] += self.gps_noise[:2]
         return error
+
+    @property
+    def position_valid(self) -> bool:
+        """Whether the estimator still has a horizontal position: the GPS has a fix, or went less than
+        ``POSITION_LOSS_AFTER_S`` ago (dead reckoning)."""
+        return (self.gps_lost_since is None
+                or self.sim_time_s - self.gps_lost_since < POSITION_LOSS_AFTER_S[self.cfg.autopilot])
+
+    def _track_gps(self, dt_s: float) -> None:
+        """``--gps-loss``: start or stop the dead reckoning; grow its error while the GPS is gone. The fix back, the
+        estimator resets onto it (the error drops to zero)."""
+        if self.cfg.faults.gps_lost(self.sim_time_s):
+            if self.gps_lost_since is None:
+                self.gps_lost_since = self.sim_time_s
+                bearing = self.rng.uniform(0.0, 2.0 * math.pi)
+                self._dead_reckoning_rate = DEAD_RECKONING_DRIFT_M_S * np.array([math.cos(bearing),
+                                                                                 math.sin(bearing), 0.0])
+                self.emit("gps", "GPS fix lost: the estimate dead-reckons")
+            self.dead_reckoning += self._dead_reckoning_rate * dt_s
+        elif self.gps_lost_since is not None:
+            self.gps_lost_since = None
+            self.dead_reckoning[:] = 0.0
+            self.emit("gps", "GPS fix back: the estimate resets onto it")
 
     @property
     def airborne(self) -> bool:
@@ -193,8 +228,8 @@ class Autopilot(CommandHandlers, TaskControl):
         """The message(s) ``msg_id`` stands for now on ``link`` (ArduPilot's DISTANCE_SENSOR is one per sector)."""
         if msg_id in SENSOR_MESSAGE_IDS:
             return [] if self.sensor is None else self.sensor.messages(msg_id, link)
-        builder = tm.BUILDERS.get(msg_id)
-        return [] if builder is None else [builder(snapshot_fn())]
+        msg = streams.build(self, msg_id, snapshot_fn()) if msg_id in tm.BUILDERS else None
+        return [] if msg is None else [msg]
 
     def delivers(self, link, msg) -> bool:
         """Whether ``msg`` goes out on ``link``: PX4 sends STATUSTEXT only to a link it has had a ground station's
@@ -380,6 +415,8 @@ class Autopilot(CommandHandlers, TaskControl):
         self.sim_time_s += dt_s
         if self.cfg.gps_noise_m > 0:
             self._drift_gps(dt_s)
+        if self.cfg.faults.gps_loss_start_s is not None:
+            self._track_gps(dt_s)
         speed = float(np.linalg.norm(s.velocity_neu))
         hit = self.recorder.truth.check(s.position_neu, self.airborne, self.sim_time_s, speed)
         if hit is not None:
@@ -450,6 +487,8 @@ class Autopilot(CommandHandlers, TaskControl):
             fix_type = M.GPS_FIX_TYPE_3D_FIX if has_fix else M.GPS_FIX_TYPE_NO_FIX
         else:  # ArduPilot SITL's simulated u-blox reports RTK fixed
             fix_type = M.GPS_FIX_TYPE_RTK_FIXED if has_fix else M.GPS_FIX_TYPE_NO_GPS
+        if self.gps_lost_since is not None:  # a receiver that lost its fix (both SITLs: NO_FIX)
+            fix_type = M.GPS_FIX_TYPE_NO_FIX
         armable = not self.crashed and self.sim_time_s >= self.boot.armable_s and self.home_neu is not None
         return tm.TelemetrySnapshot(
             int(self.sim_time_s * 1000), lat, lon, alt, alt - home[2],

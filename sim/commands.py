@@ -210,7 +210,31 @@ class CommandHandlers:
                                                           cmd.src_system, cmd.src_component))
         self._record(cmd, result, reason)
 
+    def _needs_position(self, mode: Mode) -> bool:
+        """Whether ``mode`` needs a horizontal position estimate: both autopilots refuse such a mode without one
+        (PX4's Land too; ArduCopter's LAND comes down without one, drifting)."""
+        b = mode.behaviour
+        return b in (Behaviour.HOLD, Behaviour.TAKEOFF, Behaviour.OFFBOARD, Behaviour.RTL) or (
+            self.is_px4 and b == Behaviour.LAND)
+
+    def _position_refusal(self, mode: Mode) -> tuple[int, str] | None:
+        """The refusal of ``mode`` while the estimator has no position (``--gps-loss``), else None. PX4 (measured,
+        1.15 SITL): TEMPORARILY_REJECTED, "Switching to Land is currently not available" (it lets a disarmed
+        vehicle select any mode); ArduCopter: FAILED, "Mode change to GUIDED failed: requires position"."""
+        if self.position_valid or not self._needs_position(mode):
+            return None
+        if self.is_px4:
+            if not self.armed:
+                return None
+            return self._refuse(M.MAV_RESULT_TEMPORARILY_REJECTED,
+                                f"Switching to {mode.label} is currently not available\t")
+        text = f"Mode change to {mode.name} failed: requires position"
+        self.statustext(M.MAV_SEVERITY_WARNING, text)
+        return M.MAV_RESULT_FAILED, text
+
     def _request_mode(self, mode: Mode, link):
+        if (refusal := self._position_refusal(mode)) is not None:
+            return refusal
         if self.is_px4:
             if mode.behaviour == Behaviour.OFFBOARD and not self.cfg.strict:
                 if not link.sent_setpoint and not link.classic:
@@ -245,6 +269,8 @@ class CommandHandlers:
         return value  # AMSL == map up
 
     def _cmd_takeoff(self, cmd: CommandIn, link):
+        if (refusal := self._position_refusal(self.personality.mode_for(Behaviour.TAKEOFF))) is not None:
+            return refusal
         pos = self.position_neu
         ground = self._ground_fn(pos[0], pos[1], pos[2] + 0.05)
         alt = cmd.p(7)
@@ -286,6 +312,8 @@ class CommandHandlers:
         return pos
 
     def _cmd_land(self, cmd: CommandIn, link):
+        if (refusal := self._position_refusal(self.personality.mode_for(Behaviour.LAND))) is not None:
+            return refusal
         task = Task(Behaviour.LAND, self._latlon_target(cmd))
         self.enter_mode(self.personality.mode_for(Behaviour.LAND), task)
         if self.is_px4 and self.armed:
@@ -293,6 +321,8 @@ class CommandHandlers:
         return ACCEPTED, ""
 
     def _cmd_rtl(self, cmd: CommandIn, link):
+        if (refusal := self._position_refusal(self.personality.mode_for(Behaviour.RTL))) is not None:
+            return refusal
         self.enter_mode(self.personality.mode_for(Behaviour.RTL))
         return ACCEPTED, ""
 
@@ -318,6 +348,8 @@ class CommandHandlers:
         if math.isfinite(cmd.p(1)) and cmd.p(1) > 0:
             self.speed_limit_m_s = cmd.p(1)
         mode = self.personality.mode_for(Behaviour.HOLD if self.is_px4 else Behaviour.OFFBOARD)
+        if (refusal := self._position_refusal(mode)) is not None:
+            return refusal
         self.enter_mode(mode, Task(Behaviour.HOLD, target))
         return ACCEPTED, ""
 

@@ -74,6 +74,7 @@ class Failsafes:
         self.gcs_lost = False
         self.battery_low: str | None = None  # "low" from battery_low_s on, "acted" once its failsafe acted
         self.fence_breached = False
+        self.position_lost = False  # the estimator's position-loss failsafe acted (until the position is back)
 
     # ------------------------------------------------------------------ inputs
     def on_heartbeat(self, msg) -> None:
@@ -107,6 +108,31 @@ class Failsafes:
         self._gcs()
         self._battery()
         self._fence()
+        self._position_loss()
+
+    def _position_loss(self) -> None:
+        """The estimator gave its position up (``--gps-loss``; see ``POSITION_LOSS_AFTER_S`` in sim/autopilot.py),
+        once per loss, while flying. PX4 (measured, 1.15 SITL with no RC): "Failsafe activated", Altitude mode
+        and a blind descent at MPC_LAND_SPEED, to touchdown and the landing disarm, OFFBOARD, Hold and Land refused
+        meanwhile. ArduCopter (measured, 4.7 SITL): "EKF variance", "EKF Failsafe" (both CRITICAL) and LAND
+        (FS_EKF_ACTION's default), which comes down without a position, drifting with it."""
+        ap = self.ap
+        if ap.position_valid:
+            self.position_lost = False
+            return
+        if self.position_lost or not (ap.armed and ap.airborne):
+            return
+        self.position_lost = True
+        if ap.is_px4:
+            ap.emit("failsafe", "no position estimate -> blind descent in ALTCTL")
+            ap.statustext(M.MAV_SEVERITY_WARNING, "Failsafe activated\t")
+            if ap.mode.behaviour != Behaviour.DESCEND:
+                self._failsafe_mode("ALTCTL")
+            return
+        ap.emit("failsafe", "EKF variance (no GPS) -> LAND")
+        ap.statustext(M.MAV_SEVERITY_CRITICAL, "EKF variance")
+        ap.statustext(M.MAV_SEVERITY_CRITICAL, "EKF Failsafe")
+        self._failsafe_mode("LAND")
 
     def _fence(self) -> None:
         ap = self.ap

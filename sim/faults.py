@@ -21,10 +21,14 @@ Vehicle faults:
 
 * ``battery_low_s``: this many simulated seconds after start the battery reads low; the autopilot's low-battery
   failsafe acts as its parameters say (:mod:`sim.failsafes`; ArduCopter's default and PX4 only warn).
+* ``gps_loss_start_s`` / ``gps_loss_duration_s``: from ``start`` simulated seconds after the sim starts, for
+  ``duration`` (default: for good), the GPS has no fix; the estimate dead-reckons, and once it has had no GPS for
+  the estimator's timeout the autopilot's position-loss failsafe acts (:mod:`sim.failsafes`).
 """
 
 from __future__ import annotations
 
+import math
 import random
 from dataclasses import dataclass
 
@@ -42,6 +46,8 @@ class FaultConfig:
     deny_arm_count: int = 0
     deny_commands: tuple[str, ...] = ()
     battery_low_s: float | None = None
+    gps_loss_start_s: float | None = None
+    gps_loss_duration_s: float = math.inf
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.packet_loss_pct <= 100.0:  # also refuses NaN
@@ -58,6 +64,10 @@ class FaultConfig:
             command_id(name)
         if self.battery_low_s is not None and not 0.0 <= self.battery_low_s <= 1e6:
             raise ValueError(f"battery-low time must be in [0, 1e6] s, not {self.battery_low_s}")
+        if self.gps_loss_start_s is not None and not 0.0 <= self.gps_loss_start_s <= 1e6:
+            raise ValueError(f"GPS loss start must be in [0, 1e6] s, not {self.gps_loss_start_s}")
+        if not self.gps_loss_duration_s > 0.0:  # also refuses NaN; inf: for good
+            raise ValueError(f"GPS loss duration must be > 0 s, not {self.gps_loss_duration_s}")
 
     def active(self) -> list[str]:
         """Human-readable list of the faults that are on."""
@@ -74,7 +84,15 @@ class FaultConfig:
             out.append("deny " + ",".join(self.deny_commands))
         if self.battery_low_s is not None:
             out.append(f"battery low at {self.battery_low_s:g} s")
+        if self.gps_loss_start_s is not None:
+            lasting = "" if math.isinf(self.gps_loss_duration_s) else f" for {self.gps_loss_duration_s:g} s"
+            out.append(f"GPS lost at {self.gps_loss_start_s:g} s{lasting}")
         return out
+
+    def gps_lost(self, sim_time_s: float) -> bool:
+        """Whether the GPS has no fix at ``sim_time_s`` (simulated s)."""
+        start = self.gps_loss_start_s
+        return start is not None and start <= sim_time_s < start + self.gps_loss_duration_s
 
 
 def command_id(name: str) -> int:

@@ -153,6 +153,9 @@ def request_data_stream(scheduler: StreamScheduler, link, stream_id: int, rate_h
 
 
 def build(ap, msg_id: int, snapshot: tm.TelemetrySnapshot):
-    """The message ``msg_id`` from ``snapshot``, or None if the sim does not build it."""
+    """The message ``msg_id`` from ``snapshot``, or None if the sim does not build it (or not now: PX4 stops
+    GLOBAL_POSITION_INT once its estimator has no position, measured on 1.15 SITL; LOCAL_POSITION_NED goes on)."""
+    if msg_id == M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT and ap.is_px4 and not ap.position_valid:
+        return None
     builder = tm.BUILDERS.get(msg_id)
     return None if builder is None else builder(snapshot)

@@ -121,7 +121,7 @@ def sys_status(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
 
 
 def gps_raw_int(s: TelemetrySnapshot) -> mavlink.MAVLink_message:
-    if not s.gps_has_fix:
+    if not s.gps_has_fix or s.gps_fix_type < M.GPS_FIX_TYPE_2D_FIX:
         return mavlink.MAVLink_gps_raw_int_message(s.time_boot_ms * 1000, s.gps_fix_type, 0, 0, 0, 65535, 65535,
                                                    0, 65535, 0)
     vel = math.hypot(s.vel_north_m_s, s.vel_east_m_s)

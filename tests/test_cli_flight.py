@@ -561,6 +561,29 @@ def test_the_autopilots_low_battery_return_is_respected_not_fought(start_sim, tm
     assert_down_and_disarmed(report)
 
 
+@pytest.mark.parametrize("autopilot, ending", [
+    # PX4 refuses OFFBOARD, Land and Hold without a position and lands blind in Altitude mode: the retries to
+    # take control back end when it is down (or, slower, the mission follows it down)
+    ("px4", r"left our flight mode for ALTCTL; (meanwhile the vehicle landed and disarmed at map|.*could not land "
+            r".* nor hold .*; it landed at map)"),
+    # ArduCopter names its EKF failsafe: handed over at once and followed down
+    ("ardupilot", r"the autopilot's own failsafe put the vehicle in LAND \(it said 'EKF Failsafe'\); handed over, "
+                  r"not taking control back; it landed at map"),
+])
+def test_a_gps_lost_in_flight_ends_in_the_autopilots_own_landing_said_as_such(start_sim, tmp_path, capsys, watchdog,
+                                                                             autopilot, ending):
+    watchdog(90.0)
+    sim = start_sim(autopilot=autopilot, faults=FaultConfig(gps_loss_start_s=60.0))
+    code = fly(sim, tmp_path, goal=GOAL_FAR)
+    report = sim.stop()
+    _, err = capsys.readouterr()
+    assert code == EXIT_FAILED, err
+    assert re.search(ending, err), err
+    assert [e for e in report["events"] if e["kind"] == "failsafe" and ("position" in e["text"] or "EKF" in e["text"])]
+    assert report["airborne_time_s"] > 0
+    assert_down_and_disarmed(report)
+
+
 def test_heartbeats_keep_pace_with_a_sped_up_autopilots_gcs_failsafe(start_sim, tmp_path, capsys, watchdog):
     # ArduCopter's GCS failsafe (FS_GCS_ENABLE 1, FS_GCS_TIMEOUT 5 s) runs on its own clock, which SITL at
     # --speedup 5 runs five times faster than ours: 1 Hz heartbeats on our clock arrived every 5 s of its time and

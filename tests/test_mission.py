@@ -1253,6 +1253,27 @@ def test_a_failsafe_that_refuses_land_and_hold_is_followed_down_and_where_it_lan
     assert err.value.result.final_state is S.FAILED
 
 
+def test_a_failsafe_that_lands_the_vehicle_while_control_is_refused_ends_the_retries(clock):
+    # the same failsafe, down before the second attempt to take control back: no "control taken back" over a
+    # disarmed vehicle (a disarmed PX4 accepts OFFBOARD again), the mission says it was landed meanwhile
+    v = FakeVehicle(clock, start=(-100.0, 50.0))
+
+    def position_lost():
+        v.mode, v.hint = "posctl", "the autopilot said 'Failsafe activated'"
+        v.fail_on["take_control"] = Refused("DO_SET_MODE rejected: TEMPORARILY_REJECTED")
+
+    def dropped(dt):
+        if v.mode == "posctl" and v.telemetry.armed:
+            v.telemetry.down_m, v.telemetry.on_ground, v.telemetry.armed = 0.0, True, False
+
+    clock.tickers.append(dropped)
+    clock.at(8.0, position_lost)
+    with pytest.raises(m.LandedMeanwhile, match="left our flight mode for posctl; meanwhile the vehicle landed and "
+                                                "disarmed at map"):
+        make_mission(v, clock, straight_plan([]), control_retries=3).run()
+    assert v.calls.count("take_control") == 1
+
+
 def test_takeoff_timeout_lands(clock):
     v = FakeVehicle(clock, climbs=False)
     with pytest.raises(m.FlightAborted, match="takeoff did not reach"):

@@ -98,6 +98,31 @@ def _track_clearance(track: np.ndarray, boxes: np.ndarray) -> float:
     return float(np.hypot(gap[..., 0], gap[..., 1]).min())
 
 
+def test_control_lost_while_braking_for_a_wall_is_taken_back_and_the_wall_still_flown_round(monkeypatch):
+    # PX4 left OFFBOARD (a failsafe: "Failsafe activated") just as the vehicle braked for a wall: the recovery took
+    # control back inside the brake, and its "resumed" escaped the flight loop as an unexpected error (exit 1 with
+    # the vehicle landing where it was; found against the sim's --gps-loss at 10x)
+    clock = FakeClock()
+    truth = np.vstack([STALE, WALL])
+    v = SensingVehicle(clock, truth, start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    mission = _mission(v, clock, _obstacles(), calls=[])
+    monkeypatch.setattr("skyroute.flight.replanning.can_turn_in_time", lambda *args, **kwargs: False)
+    brake = mission._brake
+
+    def brake_and_lose_control():
+        if not v.calls.count("take_control"):
+            v.mode, v.hint = "posctl", "the autopilot said 'Failsafe activated'"
+        brake()
+
+    mission._brake = brake_and_lose_control
+    result = mission.run()
+    assert result.completed and v.calls.count("take_control") == 1
+    events = [e for _, e, _ in result.history]
+    assert events.count(E.PATH_BLOCKED) >= 2  # the wall found again once flown on from where it stopped
+    assert result.landing_error_m < 0.5
+    assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
+
+
 def test_a_wall_across_the_route_is_seen_and_flown_round_to_the_goal():
     clock = FakeClock()
     truth = np.vstack([STALE, WALL])

@@ -330,3 +330,52 @@ def test_horizontal_acceleration_follows_the_measured_step_response(sim_start, s
             sim.wait_until(lambda s: abs(s["position"]["up_m"] - 10) < 0.05, 15)
         peak_accel, peak_speed = _step_response(sim, c, autopilot)
         assert 4.0 <= peak_accel <= 7.5 and 8.0 <= peak_speed <= 12.0
+
+
+def test_px4_without_gps_descends_blind_in_altitude_mode_and_refuses_the_modes_that_need_a_position(
+        sim_start, sim_connect):
+    """PX4 1.15 SITL, GPS fusion switched off in OFFBOARD flight: "Failsafe activated" 6.5 s after, Altitude mode,
+    a blind descent to the landing disarm; OFFBOARD and Land refused (TEMPORARILY_REJECTED, "Switching to Land is
+    currently not available"), GLOBAL_POSITION_INT stopped and LOCAL_POSITION_NED went on."""
+    sim = sim_start(speedup=10.0, strict=True, faults={"gps_loss_start_s": 8.0})
+    c = sim_connect(sim)
+    c.wait_for("HEARTBEAT")
+    wait_ready(sim)
+    with streaming(c, lambda: (0.0, 0.0, -5.0), hz=50.0):
+        time.sleep(0.1)
+        assert c.set_mode_px4(PX4_OFFBOARD).result == 0
+        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+        c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", timeout_s=10)
+        assert _event_time(sim, "failsafe", "no position") - _event_time(sim, "gps", "lost") == pytest.approx(
+            6.5, abs=0.05)
+        assert sim.truth()["mode"] == "ALTCTL"
+        assert c.wait_for("GPS_RAW_INT", since=c.mark()).fix_type == M.GPS_FIX_TYPE_NO_FIX
+        assert c.set_mode_px4(PX4_OFFBOARD).result == M.MAV_RESULT_TEMPORARILY_REJECTED
+        since = c.mark()
+        assert c.command(M.MAV_CMD_NAV_LAND, 0, 0, 0, NAN, NAN, NAN, NAN).result == \
+            M.MAV_RESULT_TEMPORARILY_REJECTED
+        c.wait_for("STATUSTEXT", lambda m: m.text == "Switching to Land is currently not available\t", since=since)
+        since = c.mark()
+        wait_sim(sim, 1.0)
+        assert c.of_type("LOCAL_POSITION_NED", since) and not c.of_type("GLOBAL_POSITION_INT", since)
+        sim.wait_until(lambda s: not s["armed"], 15)
+    assert sim.truth()["on_ground"] and sim.report()["collisions"] == []
+
+
+def test_ardupilot_without_gps_lands_on_its_ekf_failsafe_and_refuses_guided(sim_start, sim_connect):
+    """ArduCopter 4.7 SITL, SIM_GPS1_ENABLE 0 in flight: GPS_RAW_INT NO_FIX, then "EKF variance" and "EKF Failsafe"
+    (CRITICAL) 7.3 s after, LAND; a position mode is refused: FAILED, "Mode change to GUIDED failed: requires
+    position"."""
+    sim = sim_start(autopilot="ardupilot", speedup=10.0, faults={"gps_loss_start_s": 12.0})
+    c = sim_connect(sim)
+    _guided_takeoff(sim, c, 10.0)
+    variance = c.wait_for("STATUSTEXT", lambda m: m.text == "EKF variance", timeout_s=10)
+    assert variance.severity == M.MAV_SEVERITY_CRITICAL
+    c.wait_for("STATUSTEXT", lambda m: m.text == "EKF Failsafe", timeout_s=2)
+    assert _event_time(sim, "failsafe", "EKF") - _event_time(sim, "gps", "lost") == pytest.approx(7.3, abs=0.05)
+    assert sim.truth()["mode"] == "LAND"
+    since = c.mark()
+    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == M.MAV_RESULT_FAILED
+    c.wait_for("STATUSTEXT", lambda m: m.text == "Mode change to GUIDED failed: requires position", since=since)
+    sim.wait_until(lambda s: not s["armed"], 20)
+    assert sim.truth()["on_ground"] and sim.truth()["mode"] == "LAND"

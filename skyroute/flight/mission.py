@@ -722,20 +722,24 @@ class Mission(RecoveryMixin, LandingMixin, ReplanningMixin):
                 self._takeoff(float(waypoints[0, 2]))
             except _Resumed:
                 path = self._resume_path(waypoints)
+            blockage = None
             while True:
                 try:
+                    if blockage is not None:  # inside the try: control lost while braking for it is resumed too
+                        path, blockage = self._replan_in_flight(blockage), None
                     if self._descent_point is not None:
                         self._finish_descent()
                     else:
                         self._follow(path)
                     break
                 except _Resumed:
+                    blockage = None  # flown on from where the vehicle is; the sensing finds the blockage again
                     if not self._descent_resumable():
                         path = self._resume_path(path)
                 except _Blocked as blocked:
-                    path = self._replan_in_flight(blocked.blockage)
+                    blockage = blocked.blockage
                 except _Rerouted as better:
-                    path = better.waypoints
+                    blockage, path = None, better.waypoints
             self._land()
             self._check_reached_goal()
         except MissionError:

@@ -82,15 +82,7 @@ class RecoveryMixin:
             self._wait_for_link(why)
         else:
             self._say(why)
-        t = self.vehicle.telemetry
-        if not t.armed:
-            if t.on_ground:
-                self._fire(E.LANDED_MEANWHILE)
-                self._release()
-                p = self._map_position()
-                raise LandedMeanwhile(f"{why}; meanwhile the vehicle landed and disarmed at map ({p.north_m:.1f} N, "
-                                      f"{p.east_m:.1f} E): not taking off again on our own")
-            self._check_armed(why)
+        self._unless_landed_meanwhile(why)
         if self._landing_over_goal():  # its failsafe landed it where we were bringing it down: the landing
             self._fire(E.RESUMED)
             self._say(f"{why}: meanwhile the autopilot began landing over the goal by itself; that is the landing")
@@ -201,10 +193,29 @@ class RecoveryMixin:
         mode = self.vehicle.telemetry.mode
         return f"still in the air in {mode} after {self.handover_watch_s:g} s (the autopilot has it)"
 
+    def _unless_landed_meanwhile(self, why: str) -> None:
+        """Raise LandedMeanwhile if the vehicle stands disarmed on the ground (a failsafe landed it), or
+        VehicleDisarmedInFlight if it disarmed in the air."""
+        t = self.vehicle.telemetry
+        if t.armed:
+            return
+        if t.on_ground:
+            self._fire(E.LANDED_MEANWHILE)
+            self._release()
+            p = self._map_position()
+            raise LandedMeanwhile(f"{why}; meanwhile the vehicle landed and disarmed at map ({p.north_m:.1f} N, "
+                                  f"{p.east_m:.1f} E): not taking off again on our own")
+        self._check_armed(why)
+
     def _take_control(self, why: str) -> None:
         for attempt in range(1, self.control_retries + 1):
+            if attempt > 1:  # a failsafe refusing our mode may be landing it meanwhile (PX4 without a position)
+                self._sample()
+                self._unless_landed_meanwhile(why)
             try:
                 self.vehicle.take_control()
+                self._sample()
+                self._unless_landed_meanwhile(why)  # a disarmed PX4 takes OFFBOARD again: that is no control
                 return
             except self.vehicle_errors as exc:
                 log.warning("taking control back failed (attempt %d/%d): %s", attempt, self.control_retries, exc)

@@ -6,6 +6,7 @@ typed here as the oracle; all in simulated seconds.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
@@ -29,6 +30,20 @@ def _guided_takeoff(sim, c, up_m: float) -> None:
     assert c.command(M.MAV_CMD_DO_SET_MODE, 1, ACM["GUIDED"]).result == 0
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
     assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, up_m).result == 0
+
+
+@contextlib.contextmanager
+def _px4_offboard_until_failsafe(sim, c):
+    """PX4: wait until ready, stream a hover setpoint 5 m up at 50 Hz, take OFFBOARD, arm, and wait for "Failsafe
+    activated"; the stream goes on inside the block."""
+    c.wait_for("HEARTBEAT")
+    wait_ready(sim)
+    with streaming(c, lambda: (0.0, 0.0, -5.0), hz=50.0):
+        time.sleep(0.1)
+        assert c.set_mode_px4(PX4_OFFBOARD).result == 0
+        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+        c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", timeout_s=10)
+        yield
 
 
 def _event_time(sim, kind: str, fragment: str = "") -> float:
@@ -216,13 +231,7 @@ def test_px4_low_battery_warns_and_stays_in_offboard(sim_start, sim_connect):
     activated", and it flew on in OFFBOARD (at the low level PX4 only warns)."""
     sim = sim_start(speedup=10.0, strict=True, faults={"battery_low_s": 3.0}, params={"COM_LOW_BAT_ACT": 3})
     c = sim_connect(sim)
-    c.wait_for("HEARTBEAT")
-    wait_ready(sim)
-    with streaming(c, lambda: (0.0, 0.0, -5.0), hz=50.0):
-        time.sleep(0.1)
-        assert c.set_mode_px4(PX4_OFFBOARD).result == 0
-        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
-        c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", timeout_s=10)
+    with _px4_offboard_until_failsafe(sim, c):
         assert "Low battery level\t" in [m.text for m in c.of_type("STATUSTEXT")]
         wait_sim(sim, 2.0)
         assert sim.truth()["mode"] == "OFFBOARD" and sim.truth()["armed"]
@@ -339,13 +348,7 @@ def test_px4_without_gps_descends_blind_in_altitude_mode_and_refuses_the_modes_t
     currently not available"), GLOBAL_POSITION_INT stopped and LOCAL_POSITION_NED went on."""
     sim = sim_start(speedup=10.0, strict=True, faults={"gps_loss_start_s": 8.0})
     c = sim_connect(sim)
-    c.wait_for("HEARTBEAT")
-    wait_ready(sim)
-    with streaming(c, lambda: (0.0, 0.0, -5.0), hz=50.0):
-        time.sleep(0.1)
-        assert c.set_mode_px4(PX4_OFFBOARD).result == 0
-        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
-        c.wait_for("STATUSTEXT", lambda m: m.text == "Failsafe activated\t", timeout_s=10)
+    with _px4_offboard_until_failsafe(sim, c):
         assert _event_time(sim, "failsafe", "no position") - _event_time(sim, "gps", "lost") == pytest.approx(
             6.5, abs=0.05)
         assert sim.truth()["mode"] == "ALTCTL"

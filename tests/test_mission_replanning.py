@@ -16,7 +16,14 @@ from skyroute.cityedit import enclose_goal
 from skyroute.flight import mission as m
 from skyroute.flight.mission import MissionEvent as E
 from skyroute.flight.mission import MissionState as S
-from skyroute.flight.replanning import GOAL_AGAIN, MAX_VIEWPOINTS, speed_to_stop_within_mps, turn_lead_in_m
+from skyroute.flight.replanning import (
+    GOAL_AGAIN,
+    MAX_VIEWPOINTS,
+    STREAM_GRACE_S,
+    Sensing,
+    speed_to_stop_within_mps,
+    turn_lead_in_m,
+)
 from skyroute.planning.cspace import create_grid
 from skyroute.planning.errors import PlanningError
 from skyroute.planning.grid import GridMap
@@ -121,6 +128,50 @@ def test_control_lost_while_braking_for_a_wall_is_taken_back_and_the_wall_still_
     assert events.count(E.PATH_BLOCKED) >= 2  # the wall found again once flown on from where it stopped
     assert result.landing_error_m < 0.5
     assert _track_clearance(result.track, WALL) >= SAFETY - 1.0
+
+
+def test_an_obstacle_stream_that_stops_and_comes_back_is_said_once_each_way():
+    # the sensor (or its stream) dies mid-route: replanning stops with it, and the operator is told so
+    clock = FakeClock()
+    truth = np.vstack([STALE, WALL])
+    v = SensingVehicle(clock, truth, start=(START[0] - OFFSET.north_m, START[1] - OFFSET.east_m))
+    lines = []
+    mission = make_mission(v, clock, _plan_fn([]), goal_ne=GOAL, obstacles=_obstacles(),
+                           replan_errors=(PlanningError,), replan_margin_m=SAFETY, leg_timeout_s=120.0,
+                           progress=lines.append)
+
+    def silent():
+        v.sensing, v.next_scan_s = False, math.inf
+
+    def back():
+        v.sensing, v.next_scan_s = True, clock.now
+
+    clock.at(6.0, silent)
+    clock.at(12.0, back)
+    result = mission.run()
+    assert result.completed
+    said = [line for line in lines if "obstacle sensor" in line]
+    assert said == ["the obstacle sensor went silent: flying on the map alone, nothing replanned, until it streams "
+                    "again", "the obstacle sensor streams again: replanning on"]
+    assert result.replans  # the wall, seen once the stream was back
+
+
+def test_a_silence_the_link_explains_is_not_said_to_be_the_sensors():
+    clock = FakeClock()
+    vehicle = SimpleNamespace(sensing=True)
+    sensing = Sensing(vehicle, _obstacles(), clock)
+    assert sensing.stream_change() is None  # streaming from the start: nothing to say
+    vehicle.sensing = False
+    assert sensing.stream_change(link_ok=False) is None  # the link is down: that explains it
+    clock.sleep(5.0)
+    assert sensing.stream_change() is None  # the link just back: the stream has not resumed yet
+    clock.sleep(STREAM_GRACE_S - 0.5)
+    assert sensing.stream_change() is None  # nor within the grace
+    clock.sleep(1.0)
+    assert sensing.stream_change() == "silent"  # back for longer, and still nothing
+    assert sensing.stream_change() is None  # said once
+    vehicle.sensing = True
+    assert sensing.stream_change() == "back"
 
 
 def test_a_wall_across_the_route_is_seen_and_flown_round_to_the_goal():

@@ -52,6 +52,9 @@ SENSING_HORIZON_M = 60.0
 #: keeps re-sending the last one meanwhile). At 0.1 s, ArduPilot's sectors at 5x (400 a second) queued behind a
 #: replan were dropped in ordinary held-out flights.
 DRAIN_BUDGET_S = 0.5
+#: After the link comes back (s, our clock), how long a silent obstacle stream is put down to the outage, not said
+#: to have stopped: the vehicle link calls it stopped 2 s after its last scan.
+STREAM_GRACE_S = 3.0
 
 
 class Blockage(Protocol):
@@ -266,11 +269,36 @@ class Sensing:
     _cost_s: float = 0.0  # wall seconds per reading, lately (an exponential average)
     _oldest_s: float = math.nan
     _fix_logged_s: float = -math.inf
+    _streamed: bool = False  # the obstacle stream has come at least once
+    _silent: bool = False  # ... and has stopped since (until it comes back)
+    _link_back_s: float = -math.inf  # when the link last came back (inf while it is down)
 
     @property
     def active(self) -> bool:
         """Replanning is on and the autopilot streams obstacle data."""
         return self.obstacles is not None and bool(getattr(self.vehicle, "sensing", False))
+
+    def stream_change(self, link_ok: bool = True) -> str | None:
+        """``"silent"`` the first time the obstacle stream is found stopped after it came, ``"back"`` when it comes
+        again after that, else None (and always None with replanning off): while it is silent nothing is replanned,
+        the route is the map's. A link that is down, or came back less than ``STREAM_GRACE_S`` ago, explains a
+        silence: nothing is said for it."""
+        if self.obstacles is None:
+            return None
+        if not link_ok:
+            self._link_back_s = math.inf
+            return None
+        if self._link_back_s == math.inf:
+            self._link_back_s = self.clock()
+        if self.active:
+            self._streamed = True
+            if self._silent:
+                self._silent = False
+                return "back"
+        elif self._streamed and not self._silent and self.clock() - self._link_back_s > STREAM_GRACE_S:
+            self._silent = True
+            return "silent"
+        return None
 
     def drain(self, position_ne: Sequence[float], offset_ne: Sequence[float] | None = None, *,
               offset_down_m: float | None = None, min_altitude_m: float | None = None) -> bool:
@@ -532,6 +560,9 @@ class ReplanningMixin:
 
     def _sense(self, p, waypoints: np.ndarray, i: int) -> None:
         """Feed the readings and check the rest of the path (from the vehicle through waypoints ``i:``)."""
+        if (change := self.sensing.stream_change(self.vehicle.link_ok)) is not None:
+            self._say("the obstacle sensor went silent: flying on the map alone, nothing replanned, until it "
+                      "streams again" if change == "silent" else "the obstacle sensor streams again: replanning on")
         blockage = self.sensing.step((p.north_m, p.east_m), waypoints[i:, :2], self._offset_ne(), **self._low())
         if blockage is not None:
             raise _Blocked(blockage)

@@ -31,7 +31,8 @@ class Limits:
     position_gain_1_s: float = 1.0
     velocity_gain_1_s: float = 4.0
     yaw_gain_1_s: float = 2.0
-    #: Linear drag coefficient (1/s) coupling the airframe to the wind.
+    #: Linear drag coefficient (1/s) coupling the airframe to the air, still or moving (the client measures PX4
+    #: SIH's at ~1.1/s and ArduCopter SITL's at ~0.5/s).
     drag_1_s: float = 0.3
     #: Horizontal acceleration the airframe's tilt can give at most (m/s^2): g tan(30 degrees), ArduCopter's
     #: ANGLE_MAX default; the autopilot sets it from its parameter (PX4's MPC_TILTMAX_AIR is 45 degrees). The

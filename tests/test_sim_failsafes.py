@@ -85,7 +85,8 @@ def test_ardupilot_flies_three_missions_on_one_running_sim(sim_start, sim_connec
         assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 5).result == 0
         sim.wait_until(lambda s: s["position"]["up_m"] > 4.9, 10)
         c.setpoint_local(0.0, 20.0 * (mission + 1), -5.0)
-        sim.wait_until(lambda s, m=mission: abs(s["position"]["east_m"] - 20.0 * (m + 1)) < 0.1, 15)
+        sim.wait_until(lambda s, m=mission: abs(s["position"]["east_m"] - 20.0 * (m + 1)) < 0.1
+                       and math.hypot(*s["velocity_neu_m_s"][:2]) < 0.2, 15)  # there and stopped, not overshooting
         assert c.command(M.MAV_CMD_NAV_LAND, 0, 0, 0, NAN, 0, 0, 0).result == 0
         sim.wait_until(lambda s: not s["armed"], 20)
         since = c.mark()

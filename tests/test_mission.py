@@ -1234,6 +1234,7 @@ def test_a_failsafe_that_refuses_land_and_hold_is_followed_down_and_where_it_lan
 
     def position_lost():
         v.mode, v.hint = "posctl", "the autopilot said 'Failsafe activated'"
+        v.telemetry.gps_fix_type = 1  # NO_FIX
         for name in ("take_control!", "land!", "hold!"):
             v.fail_on[name] = Refused("DO_SET_MODE rejected: TEMPORARILY_REJECTED")
 
@@ -1246,8 +1247,9 @@ def test_a_failsafe_that_refuses_land_and_hold_is_followed_down_and_where_it_lan
 
     clock.tickers.append(blind_land)
     clock.at(8.0, position_lost)
-    with pytest.raises(m.FlightAborted, match=r"nor hold .*failsafe owns the vehicle; it landed at map "
-                                              r"\(-?\d+\.\d N, -?\d+\.\d E\) and disarmed") as err:
+    with pytest.raises(m.FlightAborted, match=r"TEMPORARILY_REJECTED \(the GPS reports no 3D fix, fix type 1: "
+                                              r"without a position .*nor hold .*failsafe owns the vehicle; "
+                                              r"it landed at map \(-?\d+\.\d N, -?\d+\.\d E\) and disarmed") as err:
         make_mission(v, clock, straight_plan([]), control_retries=3).run()
     assert v.telemetry.on_ground and not v.telemetry.armed
     assert err.value.result.final_state is S.FAILED

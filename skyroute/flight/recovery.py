@@ -193,6 +193,15 @@ class RecoveryMixin:
         mode = self.vehicle.telemetry.mode
         return f"still in the air in {mode} after {self.handover_watch_s:g} s (the autopilot has it)"
 
+    def _no_fix_hint(self) -> str:
+        """Why an autopilot may refuse every mode we ask for: its GPS has no fix (GPS_RAW_INT below 3D), so its
+        estimator has, or soon will have, no position; "" when it has one or never said."""
+        fix = int(getattr(self.vehicle.telemetry, "gps_fix_type", -1))
+        if 0 <= fix < 3:
+            return (f" (the GPS reports no 3D fix, fix type {fix}: without a position the autopilot refuses the "
+                    "modes that need one)")
+        return ""
+
     def _unless_landed_meanwhile(self, why: str) -> None:
         """Raise LandedMeanwhile if the vehicle stands disarmed on the ground (a failsafe landed it), or
         VehicleDisarmedInFlight if it disarmed in the air."""
@@ -221,7 +230,7 @@ class RecoveryMixin:
                 log.warning("taking control back failed (attempt %d/%d): %s", attempt, self.control_retries, exc)
                 if attempt == self.control_retries:
                     self._fire(E.ABORT)
-                    raise _Abort(f"{why}; could not take control back: {exc}") from exc
+                    raise _Abort(f"{why}; could not take control back: {exc}{self._no_fix_hint()}") from exc
                 self.sleep(0.5)
 
     def _resume_path(self, waypoints: np.ndarray) -> np.ndarray:

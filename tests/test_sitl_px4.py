@@ -1,4 +1,5 @@
-"""End to end against a real PX4 (v1.15 SITL with SIH, ../shared/sitl/px4): a stock boot, a second mission, Ctrl-C.
+"""End to end against a real PX4 (v1.15 SITL with SIH, ../shared/sitl/px4): a stock boot, a second mission, Ctrl-C,
+a GPS lost in flight.
 
 PX4 runs in real time. One test boots it stock (its estimator gives a global position only ~35 s after boot:
 the client must wait, quoting PX4's reasons); the other uses PX4_EKF2_FAST_ALIGN=1. An independent monitor on
@@ -9,6 +10,7 @@ where the binary is absent.
 from __future__ import annotations
 
 import math
+import re
 import signal
 import time
 
@@ -16,7 +18,7 @@ import pytest
 
 import motion_planning as mp
 from tests import shared
-from tests.exit_codes import EXIT_INTERRUPTED, EXIT_OK  # README's numbers, not the code's constants
+from tests.exit_codes import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK  # README's numbers, not the code's constants
 from tests.sitl_support import Monitor, Px4Sitl, held_out_goal, read_boxes, run_client, to_latlon
 
 pytestmark = shared.needs_px4  # the one rule for ../shared (tests/shared.py); counted in the summary
@@ -100,3 +102,25 @@ def test_ctrl_c_in_flight_lands_where_it_is_then_a_second_mission_flies(px4, tmp
     assert [line for line in out.splitlines() if line] == [line for line in out.splitlines()
                                                             if line.startswith("mission complete:")]  # -q
     assert_landed_safely_at(monitor, HOME_GOAL, started)
+
+
+@pytest.mark.parametrize("px4", [True], indirect=True, ids=["fast-align"])
+def test_a_gps_lost_in_flight_is_left_to_px4s_blind_landing_and_said_so(px4, tmp_path, capsys):
+    # GPS fusion switched off mid-route (EKF2_GPS_CTRL 0, set from the monitor's ground station): PX4 says
+    # "Failsafe activated", goes to Altitude mode and comes down blind, refusing OFFBOARD, Land and Hold. The
+    # client may not fight it nor leave before it is down (it exited with the vehicle armed at 5 m, before)
+    from pymavlink import mavutil
+
+    sitl, monitor = px4
+    proc = run_client(mission_args(sitl, GOAL_SHORT, tmp_path))
+    try:
+        monitor.wait(lambda s: s.armed and s.up_m > 3.0 and s.speed_mps > 2.0, 90.0, "a vehicle flying")
+        monitor.send(lambda mav, sysid: mav.param_set_send(sysid, 1, b"EKF2_GPS_CTRL", 0.0,
+                                                           mavutil.mavlink.MAV_PARAM_TYPE_INT32))
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == EXIT_FAILED, err
+    assert re.search(r"left our flight mode for ALTCTL; (meanwhile the vehicle landed and disarmed at map"
+                     r"|.*it landed at map .* and disarmed)", err), err
+    assert "Disarmed by landing" in " ".join(monitor.texts)  # PX4's own word that it is down

@@ -52,7 +52,8 @@ DEAD_RECKONING_DRIFT_M_S = 0.3
 #: ... until the estimator gives its horizontal position up and the position-loss failsafe acts: this long after
 #: the GPS went (simulated s), measured: PX4 1.15 SIH with GPS fusion switched off in OFFBOARD flight, "Failsafe
 #: activated" 6.5 s after (EKF2_NOAID_TOUT 5 s, then the failsafe's own hold-off); ArduCopter 4.7 SITL with
-#: SIM_GPS1_ENABLE 0, "EKF variance" and "EKF Failsafe" 7.3 s after.
+#: SIM_GPS1_ENABLE 0, "EKF variance" and "EKF Failsafe" 7.3 s after (while landing; "EKF Failsafe: changed to LAND
+#: Mode" when it changed the mode, measured mid-route).
 POSITION_LOSS_AFTER_S = {"px4": 6.5, "ardupilot": 7.3}
 #: PX4 modes that prevent arming: the mode PX4 returns to after a disarm is never one of them.
 _PX4_PREVENTS_ARMING = {"LAND", "RTL"}

@@ -114,8 +114,9 @@ class Failsafes:
         """The estimator gave its position up (``--gps-loss``; see ``POSITION_LOSS_AFTER_S`` in sim/autopilot.py),
         once per loss, while flying. PX4 (measured, 1.15 SITL with no RC): "Failsafe activated", Altitude mode
         and a blind descent at MPC_LAND_SPEED, to touchdown and the landing disarm, OFFBOARD, Hold and Land refused
-        meanwhile. ArduCopter (measured, 4.7 SITL): "EKF variance", "EKF Failsafe" (both CRITICAL) and LAND
-        (FS_EKF_ACTION's default), which comes down without a position, drifting with it."""
+        meanwhile. ArduCopter (measured, 4.7 SITL): "EKF variance", "EKF Failsafe: changed to LAND Mode" ("EKF
+        Failsafe" when landing already; both CRITICAL) and LAND (FS_EKF_ACTION's default), which comes down without
+        a position, drifting with it."""
         ap = self.ap
         if ap.position_valid:
             self.position_lost = False
@@ -131,7 +132,8 @@ class Failsafes:
             return
         ap.emit("failsafe", "EKF variance (no GPS) -> LAND")
         ap.statustext(M.MAV_SEVERITY_CRITICAL, "EKF variance")
-        ap.statustext(M.MAV_SEVERITY_CRITICAL, "EKF Failsafe")
+        landing = ap.mode.name == "LAND"
+        ap.statustext(M.MAV_SEVERITY_CRITICAL, "EKF Failsafe" if landing else "EKF Failsafe: changed to LAND Mode")
         self._failsafe_mode("LAND")
 
     def _fence(self) -> None:

@@ -367,15 +367,15 @@ def test_px4_without_gps_descends_blind_in_altitude_mode_and_refuses_the_modes_t
 
 
 def test_ardupilot_without_gps_lands_on_its_ekf_failsafe_and_refuses_guided(sim_start, sim_connect):
-    """ArduCopter 4.7 SITL, SIM_GPS1_ENABLE 0 in flight: GPS_RAW_INT NO_FIX, then "EKF variance" and "EKF Failsafe"
-    (CRITICAL) 7.3 s after, LAND; a position mode is refused: FAILED, "Mode change to GUIDED failed: requires
-    position"."""
+    """ArduCopter 4.7 SITL, SIM_GPS1_ENABLE 0 in flight: GPS_RAW_INT NO_FIX, then "EKF variance" and "EKF Failsafe:
+    changed to LAND Mode" (CRITICAL; "EKF Failsafe" when landing already) 7.3 s after, LAND; a position mode is
+    refused: FAILED, "Mode change to GUIDED failed: requires position"."""
     sim = sim_start(autopilot="ardupilot", speedup=10.0, faults={"gps_loss_start_s": 12.0})
     c = sim_connect(sim)
     _guided_takeoff(sim, c, 10.0)
     variance = c.wait_for("STATUSTEXT", lambda m: m.text == "EKF variance", timeout_s=10)
     assert variance.severity == M.MAV_SEVERITY_CRITICAL
-    c.wait_for("STATUSTEXT", lambda m: m.text == "EKF Failsafe", timeout_s=2)
+    c.wait_for("STATUSTEXT", lambda m: m.text == "EKF Failsafe: changed to LAND Mode", timeout_s=2)
     assert _event_time(sim, "failsafe", "EKF") - _event_time(sim, "gps", "lost") == pytest.approx(7.3, abs=0.05)
     assert sim.truth()["mode"] == "LAND"
     since = c.mark()

@@ -1,5 +1,5 @@
 """End to end against a real ArduCopter (SITL, ../shared/sitl): a fresh boot, a second mission, Ctrl-C, a killed
-client, an elevated start, signing, a block only its own proximity sensor shows.
+client, an elevated start, signing, a block only its own proximity sensor shows, a GPS lost in flight.
 
 ArduCopter knows nothing of our city: an independent monitor on its ground-station port (tests/sitl_support.py)
 checks every reported position against the map's boxes with its own point-to-box distance, and judges where the
@@ -21,7 +21,7 @@ import pytest
 
 import motion_planning as mp
 from tests import shared
-from tests.exit_codes import EXIT_INTERRUPTED, EXIT_OK  # README's numbers, not the code's constants
+from tests.exit_codes import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK  # README's numbers, not the code's constants
 from tests.sitl_support import (
     ArduCopterSitl,
     Monitor,
@@ -270,3 +270,26 @@ def test_a_wind_that_takes_most_of_the_tilt_is_flown_within_it_and_keeps_the_mar
         # the goal to 1.5 m first (skyroute.flight.landing), 0.21 m
         assert error_m <= 1.0
         assert "wind: its drag takes" in out
+
+
+def test_a_gps_lost_in_flight_is_handed_to_arducopters_ekf_failsafe_and_followed_down(tmp_path):
+    # SIM_GPS1_ENABLE 0 mid-route (from the monitor's ground station): "EKF variance", "EKF Failsafe: ...", LAND. The
+    # client hands over at once (its own failsafe, named), follows it down and says where it landed
+    from pymavlink import mavutil
+
+    with ArduCopterSitl((LAT0, LON0, 0.0)) as sitl:
+        monitor = Monitor(sitl.gcs, MAP, ground_amsl_m=0.0)
+        proc = run_client(mission_args(sitl, GOAL_NEAR, tmp_path))
+        try:
+            monitor.wait(lambda s: s.armed and s.up_m > 3.0 and s.speed_mps > 2.0, 120.0, "a vehicle flying")
+            monitor.send(lambda mav, sysid: mav.param_set_send(sysid, 1, b"SIM_GPS1_ENABLE", 0.0,
+                                                               mavutil.mavlink.MAV_PARAM_TYPE_INT8))
+            out, err = proc.communicate(timeout=120)
+        finally:
+            proc.kill()
+            monitor.close()
+    assert proc.returncode == EXIT_FAILED, err
+    # measured: "EKF Failsafe: changed to LAND Mode" (only "EKF Failsafe" when it is landing already)
+    assert ("the autopilot's own failsafe put the vehicle in LAND (it said 'EKF Failsafe: changed to LAND Mode'); "
+            "handed over, not taking control back; it landed at map") in err, err
+    assert "EKF variance" in monitor.texts

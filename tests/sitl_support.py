@@ -51,6 +51,21 @@ def run_client(args: list[str]) -> subprocess.Popen:
                             preexec_fn=_default_sigint)  # before exec: only a signal disposition
 
 
+def fly_and_set_param_in_flight(monitor, args: list[str], name: str, value: float, param_type: int,
+                                 fly_timeout_s: float = 90.0) -> tuple[int, str, str]:
+    """Run the CLI with ``args`` (:func:`run_client`); once the monitor sees the vehicle flying (armed, 3 m up,
+    2 m/s), set the autopilot's parameter ``name`` from the monitor's ground station (e.g. to switch its GPS off);
+    wait for the CLI to exit. Returns ``(exit code, stdout, stderr)``."""
+    proc = run_client(args)
+    try:
+        monitor.wait(lambda s: s.armed and s.up_m > 3.0 and s.speed_mps > 2.0, fly_timeout_s, "a vehicle flying")
+        monitor.send(lambda mav, sysid: mav.param_set_send(sysid, 1, name.encode(), value, param_type))
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    return proc.returncode, out, err
+
+
 def arducopter_binary() -> Path | None:
     """The ArduCopter SITL binary in the shared directory (:func:`tests.shared.arducopter`), or None."""
     return shared.arducopter()

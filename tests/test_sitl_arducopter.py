@@ -27,6 +27,7 @@ from tests.sitl_support import (
     Monitor,
     box_ne,
     distance_to_boxes_m,
+    fly_and_set_param_in_flight,
     held_out_goal,
     read_boxes,
     run_client,
@@ -279,16 +280,13 @@ def test_a_gps_lost_in_flight_is_handed_to_arducopters_ekf_failsafe_and_followed
 
     with ArduCopterSitl((LAT0, LON0, 0.0)) as sitl:
         monitor = Monitor(sitl.gcs, MAP, ground_amsl_m=0.0)
-        proc = run_client(mission_args(sitl, GOAL_NEAR, tmp_path))
         try:
-            monitor.wait(lambda s: s.armed and s.up_m > 3.0 and s.speed_mps > 2.0, 120.0, "a vehicle flying")
-            monitor.send(lambda mav, sysid: mav.param_set_send(sysid, 1, b"SIM_GPS1_ENABLE", 0.0,
-                                                               mavutil.mavlink.MAV_PARAM_TYPE_INT8))
-            out, err = proc.communicate(timeout=120)
+            code, _, err = fly_and_set_param_in_flight(monitor, mission_args(sitl, GOAL_NEAR, tmp_path),
+                                                       "SIM_GPS1_ENABLE", 0.0, mavutil.mavlink.MAV_PARAM_TYPE_INT8,
+                                                       fly_timeout_s=120.0)
         finally:
-            proc.kill()
             monitor.close()
-    assert proc.returncode == EXIT_FAILED, err
+    assert code == EXIT_FAILED, err
     # measured: "EKF Failsafe: changed to LAND Mode" (only "EKF Failsafe" when it is landing already)
     assert ("the autopilot's own failsafe put the vehicle in LAND (it said 'EKF Failsafe: changed to LAND Mode'); "
             "handed over, not taking control back; it landed at map") in err, err

@@ -19,7 +19,15 @@ import pytest
 import motion_planning as mp
 from tests import shared
 from tests.exit_codes import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK  # README's numbers, not the code's constants
-from tests.sitl_support import Monitor, Px4Sitl, held_out_goal, read_boxes, run_client, to_latlon
+from tests.sitl_support import (
+    Monitor,
+    Px4Sitl,
+    fly_and_set_param_in_flight,
+    held_out_goal,
+    read_boxes,
+    run_client,
+    to_latlon,
+)
 
 pytestmark = shared.needs_px4  # the one rule for ../shared (tests/shared.py); counted in the summary
 
@@ -112,15 +120,10 @@ def test_a_gps_lost_in_flight_is_left_to_px4s_blind_landing_and_said_so(px4, tmp
     from pymavlink import mavutil
 
     sitl, monitor = px4
-    proc = run_client(mission_args(sitl, GOAL_SHORT, tmp_path))
-    try:
-        monitor.wait(lambda s: s.armed and s.up_m > 3.0 and s.speed_mps > 2.0, 90.0, "a vehicle flying")
-        monitor.send(lambda mav, sysid: mav.param_set_send(sysid, 1, b"EKF2_GPS_CTRL", 0.0,
-                                                           mavutil.mavlink.MAV_PARAM_TYPE_INT32))
-        out, err = proc.communicate(timeout=120)
-    finally:
-        proc.kill()
-    assert proc.returncode == EXIT_FAILED, err
+    goal = held_out_goal(MAP, seed=29, min_m=200.0, max_m=300.0)  # far enough to be on the way 7 s after the loss
+    code, _, err = fly_and_set_param_in_flight(monitor, mission_args(sitl, goal, tmp_path), "EKF2_GPS_CTRL", 0.0,
+                                               mavutil.mavlink.MAV_PARAM_TYPE_INT32)
+    assert code == EXIT_FAILED, err
     assert re.search(r"left our flight mode for ALTCTL; (meanwhile the vehicle landed and disarmed at map"
                      r"|.*it landed at map .* and disarmed)", err), err
     assert "Disarmed by landing" in " ".join(monitor.texts)  # PX4's own word that it is down

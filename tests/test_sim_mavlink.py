@@ -324,6 +324,10 @@ def test_flying_through_a_building_is_a_collision(sim_start, sim_connect):
 
 
 @pytest.mark.flight
+def _stopped(truth: dict) -> bool:
+    return math.hypot(*truth["velocity_neu_m_s"][:2]) < 0.2
+
+
 def test_flying_around_a_building_reports_clearance(sim_start, sim_connect, tmp_path):
     sim = sim_start(speedup=20.0, report_path=tmp_path / "report.json")
     c = sim_connect(sim)
@@ -332,16 +336,19 @@ def test_flying_around_a_building_reports_clearance(sim_start, sim_connect, tmp_
     # PX4's local metres, on its 6371 km sphere: 15 m east is 15.036 map metres at SF, 60 m north 59.89
     scale_n, scale_e = CityMap(37.792480, -122.397450, np.zeros((0, 6))).local_scale("px4")
     east, north = 15.0 / scale_e, 60.0 / scale_n
+    # each leg once the vehicle is there and stopped: with drag it overshoots and comes back, as PX4 does
     c.setpoint_local(0.0, 15.0, -5.0)
-    sim.wait_until(lambda s: abs(s["position"]["east_m"] - east) < 0.02, 10)
+    sim.wait_until(lambda s: abs(s["position"]["east_m"] - east) < 0.02 and _stopped(s), 10)
     c.setpoint_local(60.0, 15.0, -5.0)
-    sim.wait_until(lambda s: abs(s["position"]["north_m"] - north) < 0.05, 15)
+    sim.wait_until(lambda s: abs(s["position"]["north_m"] - north) < 0.05 and _stopped(s), 15)
     assert c.command(M.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan).result == 0
     sim.wait_until(lambda s: not s["armed"], 20)
     report = sim.report()
     assert report["collisions"] == [] and not report["crashed"]
     # Path at east 15.036 m, building's east face at 5 m, sphere radius 0.3 m -> 9.736 m.
-    assert 9.5 <= report["min_clearance_m"] <= east - 5.3 + 0.02  # + the 0.02 m waypoint tolerance above
+    # + the waypoint tolerance above and the line's wander: with drag, the north leg's saturated acceleration slows
+    # the east axis's settling, and the vehicle passes the building up to ~0.3 m east of its line
+    assert 9.5 <= report["min_clearance_m"] <= east - 5.3 + 0.4
     assert report["landed"]["north_m"] == pytest.approx(north, abs=0.1)
     assert report["max_altitude_m"] == pytest.approx(5.0, abs=0.1)
     # the legs' overshoot comes on top, as on a real airframe with drag: PX4 1.15 SIH overshot a 60 m position

@@ -377,7 +377,7 @@ def test_ardupilot_personality(sim_start, sim_connect):
     sim.wait_until(lambda s: abs(s["position"]["up_m"] - 10) < 0.1, 10)
     assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 20).result == M.MAV_RESULT_FAILED  # flying
     c.setpoint_local(10.0, 0.0, -10.0)
-    sim.wait_until(lambda s: abs(s["position"]["north_m"] - 10) < 0.05, 10)
+    sim.wait_until(lambda s: abs(s["position"]["north_m"] - 10) < 0.05 and _stopped(s), 10)  # not overshooting
     since = c.mark()
     c.send(M.MAVLink_set_mode_message(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, acm["LAND"]))
     c.wait_for("HEARTBEAT", lambda m: m.custom_mode == acm["LAND"], since=since)
